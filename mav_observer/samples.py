@@ -1,0 +1,179 @@
+"""The small immutable records that carry data between the parts of mav-observer.
+
+Conventions (the paper's, see ``docs/observer.md``):
+
+* ``x`` is the relative position the observer estimates. For a vehicle looking at a target
+  in the local NED frame, ``x = p_target - p_vehicle`` in metres.
+* ``v`` is the *known* part of ``dx/dt``. For a vehicle it is **minus** the vehicle's
+  measured velocity: ``v = -u``. It is in the same frame as ``x``, in m/s.
+* ``a`` is the unknown constant part of ``dx/dt`` (m/s): target velocity minus the vehicle's
+  velocity error.
+* ``y = x / |x|`` is the bearing, a unit vector in the same frame.
+
+Construction validates: a sample that exists is finite, of a supported dimension, and (for a
+bearing) a unit vector. Arrays are copied and made read-only so a sample cannot change after
+it was accepted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from mav_observer.errors import InvalidSampleError
+
+#: A bearing whose norm is within this relative distance of 1 is normalised silently;
+#: farther from unit length it is rejected as "far from unit".
+BEARING_NORM_TOL = 0.01
+
+#: Smallest supported dimension (the paper's n >= 2).
+MIN_DIM = 2
+
+
+def _frozen_vector(name: str, value: object, t_s: float) -> np.ndarray:
+    """Return ``value`` as a read-only 1-D float64 copy, or raise naming ``name``."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidSampleError(f"{name}={value!r} at t_s={t_s} is not a numeric vector") from exc
+    if arr.ndim != 1 or arr.shape[0] < MIN_DIM:
+        raise InvalidSampleError(
+            f"{name} must be a vector of dimension >= {MIN_DIM}, got shape {arr.shape} at t_s={t_s}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise InvalidSampleError(f"{name}={arr.tolist()} at t_s={t_s} contains a non-finite value")
+    arr.setflags(write=False)
+    return arr
+
+
+def _check_time(t_s: object) -> float:
+    if isinstance(t_s, bool) or not isinstance(t_s, (int, float, np.floating, np.integer)):
+        raise InvalidSampleError(f"t_s={t_s!r} is not a number")
+    t = float(t_s)
+    if not math.isfinite(t):
+        raise InvalidSampleError(f"t_s={t} is not finite")
+    return t
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class VelocitySample:
+    """The known velocity term ``v`` (m/s) at time ``t_s`` (s, on the observer's time base).
+
+    For a vehicle this is minus its measured velocity (``v = -vel_ned_mps``); see the module
+    docstring for the sign convention.
+    """
+
+    t_s: float
+    v_mps: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = _check_time(self.t_s)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "v_mps", _frozen_vector("v_mps", self.v_mps, t))
+
+    @property
+    def dim(self) -> int:
+        return int(self.v_mps.shape[0])
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class BearingSample:
+    """A measured direction ``y`` (unit vector, dimensionless) from the observer's origin
+    (the vehicle) towards ``x`` (the target), at time ``t_s`` (s).
+
+    A ``y`` whose norm is within :data:`BEARING_NORM_TOL` of 1 is normalised; zero-length or
+    farther-from-unit vectors are rejected. Use :meth:`from_vector` to build a bearing from
+    any non-zero direction vector (a line of sight in camera units, say).
+    """
+
+    t_s: float
+    y: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = _check_time(self.t_s)
+        y = _frozen_vector("y", self.y, t)
+        norm = float(np.linalg.norm(y))
+        if norm == 0.0:
+            raise InvalidSampleError(f"bearing y={y.tolist()} at t_s={t} has zero length")
+        if abs(norm - 1.0) > BEARING_NORM_TOL:
+            raise InvalidSampleError(
+                f"bearing y={y.tolist()} at t_s={t} is far from unit length (|y|={norm:.6g}, "
+                f"tolerance {BEARING_NORM_TOL})"
+            )
+        if norm != 1.0:
+            y = y / norm
+            y.setflags(write=False)
+        object.__setattr__(self, "t_s", t)
+        object.__setattr__(self, "y", y)
+
+    @classmethod
+    def from_vector(cls, t_s: float, direction: object) -> BearingSample:
+        """Bearing along any finite, non-zero ``direction`` vector (normalised here)."""
+        t = _check_time(t_s)
+        d = _frozen_vector("direction", direction, t)
+        norm = float(np.linalg.norm(d))
+        if not norm > 0.0 or not math.isfinite(norm):
+            raise InvalidSampleError(f"direction={d.tolist()} at t_s={t} has no usable length")
+        return cls(t, d / norm)
+
+    @property
+    def dim(self) -> int:
+        return int(self.y.shape[0])
+
+
+class Status(StrEnum):
+    """What an estimate is worth; the rules are in :mod:`mav_observer.monitor`."""
+
+    CONVERGING = "converging"
+    CONVERGED = "converged"
+    NOT_OBSERVABLE = "not observable"
+    STALE = "stale"
+
+
+@dataclass(frozen=True, eq=False, slots=True)
+class Estimate:
+    """The observer's output at time ``t_s`` (s).
+
+    * ``x_m``: estimated relative position ``xhat`` (m), target minus vehicle.
+    * ``a_mps``: estimated constant velocity term ``ahat`` (m/s); zeros in bias-free mode.
+    * ``range_m``: ``|xhat|`` (m).
+    * ``excitation``: smallest eigenvalue of the time-average of ``Pi_y`` over the monitor's
+      window, in [0, (n-1)/n]; 0 means the bearing did not move.
+    * ``cond_m``: 2-norm condition number of the observer matrix ``M``.
+    * ``status``: see :class:`Status`.
+    * ``corrected``: False when the last step only predicted (no usable bearing).
+    * ``bearing_age_s`` / ``velocity_age_s``: time since the latest sample of each stream.
+    * ``correction_rel``: net correction applied over the window, relative to the range
+      (the convergence indicator of the monitor).
+    """
+
+    t_s: float
+    x_m: np.ndarray
+    a_mps: np.ndarray
+    range_m: float
+    excitation: float
+    cond_m: float
+    status: Status
+    corrected: bool
+    bearing_age_s: float | None
+    velocity_age_s: float | None
+    correction_rel: float
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain JSON-serialisable form."""
+        return {
+            "t_s": self.t_s,
+            "x_m": self.x_m.tolist(),
+            "a_mps": self.a_mps.tolist(),
+            "range_m": self.range_m,
+            "excitation": self.excitation,
+            "cond_m": self.cond_m,
+            "status": str(self.status),
+            "corrected": self.corrected,
+            "bearing_age_s": self.bearing_age_s,
+            "velocity_age_s": self.velocity_age_s,
+            "correction_rel": self.correction_rel,
+        }
