@@ -1,0 +1,476 @@
+"""The observer: paper scenario, RK4 agreement, Lemma 3.1, equivariance, hover, bad input,
+warm restart, irregular and huge steps."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from mav_observer import (
+    BearingSample,
+    BiasObserver,
+    ConfigError,
+    InvalidSampleError,
+    ObserverConfig,
+    StateError,
+    Status,
+    VelocitySample,
+)
+from sim import scenarios
+from sim.reference import rk4_reference
+from sim.runner import RunResult, run
+from sim.stream import Noise, generate
+
+# -- the paper's scenario, noise-free, the paper's gains -------------------------------
+
+
+@pytest.fixture(scope="module")
+def paper_run() -> RunResult:
+    return run(BiasObserver(ObserverConfig.paper()), generate(scenarios.paper()))
+
+
+def test_paper_scenario_converges_to_cm_and_mm_per_s(paper_run: RunResult) -> None:
+    i300 = paper_run.at(300.0)
+    assert paper_run.t_s[i300] == pytest.approx(300.0)
+    assert paper_run.pos_err_m[i300] < 0.01
+    assert paper_run.bias_err_mps[i300] < 0.001
+    assert paper_run.status[i300] == "converged"
+
+
+def test_paper_scenario_error_decays(paper_run: RunResult) -> None:
+    e100 = paper_run.pos_err_m[paper_run.at(100.0)]
+    e200 = paper_run.pos_err_m[paper_run.at(200.0)]
+    assert e200 < 0.1 * e100
+
+
+def test_discretisation_matches_rk4_of_the_continuous_equations(paper_run: RunResult) -> None:
+    """20 Hz samples against a fine RK4 (10 ms) of the continuous equations driven by the
+    true, continuous y(t), v(t): relative difference at most 1e-3 over the whole run."""
+    ref = rk4_reference(scenarios.paper(), k=0.5, k_star=5.0, t_out_s=paper_run.t_s, dt_s=0.01)
+    rel = np.linalg.norm(paper_run.xhat_m - ref.xhat_m, axis=1) / paper_run.range_m
+    assert rel.max() < 1e-3
+    a_rel = np.linalg.norm(paper_run.ahat_mps - ref.ahat_mps, axis=1) / np.linalg.norm(
+        scenarios.paper().a_mps
+    )
+    assert a_rel.max() < 1e-3
+    assert np.allclose(paper_run.cond_m, ref.cond_m, rtol=1e-3)
+
+
+def test_zero_order_hold_is_much_less_accurate() -> None:
+    """The reason for interpolating: from-sample holds at 20 Hz miss the RK4 solution by
+    more than the 1e-3 the linear interpolation meets."""
+    sc = scenarios.paper(duration_s=120.0)
+    res = run(BiasObserver(ObserverConfig.paper(interpolation="hold")), generate(sc))
+    ref = rk4_reference(sc, k=0.5, k_star=5.0, t_out_s=res.t_s, dt_s=0.01)
+    rel = np.linalg.norm(res.xhat_m - ref.xhat_m, axis=1) / res.range_m
+    assert rel.max() > 3e-3
+
+
+# -- Lemma 3.1: the bias-free observer never lets the error grow ---------------------
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    k=st.floats(0.05, 3.0),
+    x0_range=st.floats(5.0, 60.0),
+    init_scale=st.floats(0.0, 200.0),
+    speed=st.floats(0.5, 8.0),
+)
+def test_bias_free_error_never_increases(
+    seed: int, k: float, x0_range: float, init_scale: float, speed: float
+) -> None:
+    """a = 0, random smooth-but-wiggly trajectory, random initial xh1. With inputs held from
+    each sample the discrete error obeys x~' = Phi x~ + (h - g) Pi_y v with ||Phi|| <= 1, so
+    |x~| may grow per step by at most (h - g)|Pi_y v| (g = (1 - e^{-kh})/k), and no more."""
+    rng = np.random.default_rng(seed)
+    h, steps = 0.05, 300
+    x = rng.normal(size=3)
+    x *= x0_range / np.linalg.norm(x)
+    vel = np.cumsum(rng.normal(size=(steps, 3)), axis=0)
+    vel *= speed / max(1e-9, np.abs(vel).max())
+    xs = x + np.vstack((np.zeros(3), np.cumsum(vel * h, axis=0)))
+    assume(np.linalg.norm(xs, axis=1).min() > 1.0)
+    xh1_0 = rng.normal(size=3) * init_scale
+    obs = BiasObserver(
+        ObserverConfig(
+            mode="bias_free",
+            k_per_s=k,
+            interpolation="hold",
+            static_hold=False,
+            xh1_0_m=tuple(xh1_0),
+        )
+    )
+    g = -math.expm1(-k * h) / k
+    prev = None
+    for j in range(steps + 1):
+        t = j * h
+        y = xs[j] / np.linalg.norm(xs[j])
+        obs.update_velocity(VelocitySample(t, vel[min(j, steps - 1)]))
+        est = obs.update_bearing(BearingSample(t, y))
+        assert np.array_equal(est.a_mps, np.zeros(3))
+        err = float(np.linalg.norm(xs[j] - est.x_m))
+        if prev is not None:
+            y_prev, v_prev, e_prev = prev
+            v_perp = v_prev - (v_prev @ y_prev) * y_prev
+            bound = (h - g) * float(np.linalg.norm(v_perp))
+            assert err <= e_prev + bound + 1e-9 * (1.0 + e_prev)
+        prev = (y, vel[min(j, steps - 1)], err)
+
+
+# -- equivariance ----------------------------------------------------------------------
+
+
+def _random_rotation(rng: np.random.Generator, n: int) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(n, n)))
+    q = q @ np.diag(np.sign(np.diag(r)))
+    if np.linalg.det(q) < 0:
+        q[:, 0] = -q[:, 0]
+    return q
+
+
+@pytest.mark.parametrize(("name", "n"), [("orbit", 3), ("planar", 2)])
+def test_rotating_the_scenario_rotates_the_estimates(name: str, n: int) -> None:
+    rng = np.random.default_rng(2024)
+    r = _random_rotation(rng, n)
+    sc = scenarios.make(name, duration_s=80.0)
+    stream = generate(sc, seed=5, noise=Noise(bearing_sigma_deg=0.5, velocity_sigma_mps=0.05))
+    m0 = np.diag(np.arange(1.0, n + 1.0))
+    xh1_0, zs_0 = rng.normal(size=n) * 3, rng.normal(size=n)
+    cfg = ObserverConfig(
+        n=n, xh1_0_m=tuple(xh1_0), m_0_s=tuple(map(tuple, m0)), zs_0_mps=tuple(zs_0)
+    )
+    cfg_r = ObserverConfig(
+        n=n,
+        xh1_0_m=tuple(r @ xh1_0),
+        m_0_s=tuple(map(tuple, r @ m0 @ r.T)),
+        zs_0_mps=tuple(r @ zs_0),
+    )
+    base = run(BiasObserver(cfg), stream)
+    turned = run(BiasObserver(cfg_r), stream.rotated(r))
+    scale = np.abs(base.xhat_m).max()
+    assert np.abs(turned.xhat_m - base.xhat_m @ r.T).max() < 1e-9 * scale
+    assert np.abs(turned.ahat_mps - base.ahat_mps @ r.T).max() < 1e-9 * max(1.0, scale)
+    assert np.array_equal(turned.status, base.status)
+    assert np.allclose(turned.excitation, base.excitation, atol=1e-12)
+
+
+def test_planar_case_converges() -> None:
+    res = run(BiasObserver(ObserverConfig(n=2)), generate(scenarios.planar()))
+    assert res.pos_err_m[-1] < 0.01 * res.range_m[-1]
+    assert res.bias_err_mps[-1] < 0.005
+    assert res.status[-1] == "converged"
+
+
+# -- observability: one hour of hover -------------------------------------------------
+
+
+def _hover_run(cfg: ObserverConfig) -> tuple[RunResult, float, float]:
+    start, hover = 200.0, 3600.0
+    sc = scenarios.orbit(pause=(start, hover), duration_s=start + hover + 158.0)
+    res = run(BiasObserver(cfg), generate(sc))  # 20 Hz
+    return res, start + 4.0, start + 4.0 + hover  # still from the end of the 4 s slow-down
+
+
+def _assert_finite(res: RunResult) -> None:
+    for arr in (res.xhat_m, res.ahat_mps, res.cond_m, res.excitation, res.correction_rel):
+        assert np.all(np.isfinite(arr))
+
+
+def test_an_hour_of_hover_with_the_static_hold() -> None:
+    res, still_from, still_to = _hover_run(ObserverConfig())
+    _assert_finite(res)
+    i0, i1 = res.at(still_from), res.at(still_to)
+    before = res.pos_err_m[i0]
+    # converged before; the last creep of the slow-down under hold_speed_mps costs a few mm
+    assert before < 0.01
+    hover = slice(res.at(still_from + 30.0), i1 + 1)
+    assert set(res.status[hover]) == {"not observable"}
+    assert np.all(res.pos_err_m[i0 : i1 + 1] <= before)  # no worse at any time of the hover
+    assert res.cond_m[i0 : i1 + 1].max() < 10.0  # M held too
+    # motion resumes: converges again
+    assert res.status[-1] == "converged"
+    assert res.pos_err_m[-1] < 0.005
+
+
+def test_an_hour_of_hover_with_the_paper_dynamics() -> None:
+    """Without the hold (the paper's equations) M grows along y, cond(M) grows linearly, the
+    numbers stay finite; the range drifts by exactly the bias error along the line of
+    sight (unobservable) and converges again once moving."""
+    res, still_from, still_to = _hover_run(ObserverConfig(static_hold=False))
+    _assert_finite(res)
+    i0, i1 = res.at(still_from), res.at(still_to)
+    assert res.cond_m[i1] > 100 * res.cond_m[i0]
+    assert set(res.status[res.at(still_from + 30.0) : i1 + 1]) == {"not observable"}
+    y = res.x_true_m[i1] / np.linalg.norm(res.x_true_m[i1])
+    drift = float((res.xhat_m[i1] - res.xhat_m[i0]) @ y)
+    expected = float((res.ahat_mps[i0] - res.a_true_mps[i0]) @ y) * (res.t_s[i1] - res.t_s[i0])
+    assert drift == pytest.approx(expected, rel=0.1)
+    assert res.status[-1] == "converged"
+    assert res.pos_err_m[-1] < 0.005
+
+
+def test_hold_does_not_touch_a_moving_scenario() -> None:
+    stream = generate(scenarios.orbit(duration_s=120.0), noise=Noise(bearing_sigma_deg=0.5))
+    a = run(BiasObserver(ObserverConfig()), stream)
+    b = run(BiasObserver(ObserverConfig(static_hold=False)), stream)
+    assert np.array_equal(a.xhat_m, b.xhat_m)
+
+
+def test_straight_pass_then_hover_is_reported_not_observable() -> None:
+    res = run(BiasObserver(ObserverConfig()), generate(scenarios.straight_pass()))
+    _assert_finite(res)
+    hover = res.t_s > scenarios.straight_pass().duration_s - 40.0
+    assert set(res.status[hover]) == {"not observable"}
+    assert res.excitation[hover].max() < 0.01
+    assert res.excitation[(res.t_s > 12) & (res.t_s < 28)].max() > 0.05  # the pass
+
+
+# -- staleness -----------------------------------------------------------------------
+
+
+def test_a_stale_bearing_is_not_used_and_the_estimate_says_so() -> None:
+    cfg = ObserverConfig(max_bearing_age_s=1.0)
+    obs = BiasObserver(cfg)
+    stream = generate(scenarios.orbit(duration_s=200.0))
+    gap = (120.0, 130.0)
+    for ev in stream.events():
+        if isinstance(ev, BearingSample):
+            if gap[0] < ev.t_s < gap[1]:
+                continue
+            est = obs.update_bearing(ev)
+            if abs(ev.t_s - 120.0) < 1e-9:
+                assert est.status is Status.CONVERGED and est.corrected
+        else:
+            obs.update_velocity(ev)
+        if abs(ev.t_s - 122.0) < 1e-9 and isinstance(ev, VelocitySample):
+            p1 = obs.predict(122.0)
+        if abs(ev.t_s - 128.0) < 1e-9 and isinstance(ev, VelocitySample):
+            p2 = obs.predict(128.0)
+            # pure prediction from 121 s: xhat' = v + ahat, ahat constant
+            vs = stream.v_mps[
+                (stream.t_velocity_s >= 122.0 - 1e-9) & (stream.t_velocity_s <= 128.0 + 1e-9)
+            ]
+            integral = 0.05 * (vs[1:] + vs[:-1]).sum(axis=0) / 2.0
+            assert np.allclose(p2.x_m - p1.x_m, integral + 6.0 * p1.a_mps, atol=1e-9)
+            assert np.array_equal(p1.a_mps, p2.a_mps)
+    assert p1.status is Status.STALE and not p1.corrected
+    assert p2.status is Status.STALE and p2.bearing_age_s == pytest.approx(8.0)
+    final = obs.estimate
+    assert final is not None and final.status is Status.CONVERGED
+    assert np.linalg.norm(final.x_m - stream.x_true_m[-1]) < 0.01
+
+
+def test_velocity_may_arrive_after_its_bearing() -> None:
+    """Arrival order does not change the committed state: a bearing whose velocity is late
+    gets a provisional estimate, and the state is integrated again once it arrives."""
+    stream = generate(scenarios.orbit(duration_s=30.0), noise=Noise(bearing_sigma_deg=1.0))
+    first = BiasObserver()
+    for ev in stream.events():
+        (first.update_bearing if isinstance(ev, BearingSample) else first.update_velocity)(ev)
+    late = BiasObserver()
+    for tb, y, tv, v in zip(
+        stream.t_bearing_s, stream.y, stream.t_velocity_s, stream.v_mps, strict=True
+    ):
+        late.update_bearing(BearingSample(tb, y))
+        late.update_velocity(VelocitySample(tv, v))
+    assert np.array_equal(first.m_s, late.m_s)
+    assert np.array_equal(first.xh1_m, late.xh1_m)
+    assert np.array_equal(first.zs_mps, late.zs_mps)
+
+
+# -- steps of any size, irregular sampling -----------------------------------------
+
+
+@pytest.mark.parametrize("k_star", [0.2, 5.0])
+def test_irregular_steps_from_1e_4_to_60_s_stay_finite(k_star: float) -> None:
+    rng = np.random.default_rng(7)
+    sc = scenarios.orbit()
+    gaps = 10.0 ** rng.uniform(-4.0, math.log10(60.0), 300)
+    tb = np.cumsum(gaps)
+    tv = np.sort(tb + rng.uniform(-1e-4, 1e-4, tb.shape))
+    obs = BiasObserver(
+        ObserverConfig(k_star_per_s=k_star, max_bearing_age_s=100.0, max_velocity_age_s=100.0)
+    )
+    events = sorted(
+        [(t, 0, VelocitySample(t, sc.v(t))) for t in tv]
+        + [(t, 1, BearingSample(t, sc.y(t))) for t in tb],
+        key=lambda e: (e[0], e[1]),
+    )
+    for _, kind, ev in events:
+        if kind:
+            est = obs.update_bearing(ev)
+            assert np.all(np.isfinite(est.x_m)) and np.all(np.isfinite(est.a_mps))
+            assert math.isfinite(est.cond_m) and math.isfinite(est.excitation)
+            assert est.range_m < 1e4
+        else:
+            obs.update_velocity(ev)
+    assert max(gaps) * k_star > 100 or k_star < 1.0
+
+
+def test_jittered_dropped_samples_at_different_rates_converge() -> None:
+    stream = generate(
+        scenarios.orbit(),
+        seed=3,
+        bearing_rate_hz=10.0,
+        velocity_rate_hz=8.0,
+        noise=Noise(drop_prob=0.2, jitter_frac=0.3),
+    )
+    res = run(BiasObserver(), stream)
+    assert res.pos_err_m[-1] < 0.01
+    assert res.status[-1] == "converged"
+
+
+# -- bad input --------------------------------------------------------------------------
+
+
+def _started_observer() -> BiasObserver:
+    obs = BiasObserver()
+    for ev in generate(scenarios.orbit(duration_s=5.0)).events():
+        (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
+    return obs
+
+
+def _snapshot(obs: BiasObserver) -> str:
+    return json.dumps(obs.to_dict(), sort_keys=True)
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (
+            lambda o: o.update_velocity(VelocitySample(6.0, [1.0, 2.0])),
+            "dimension 2, the observer has n=3",
+        ),
+        (lambda o: o.update_bearing(BearingSample(6.0, [0.0, 1.0])), "dimension 2"),
+        (lambda o: o.update_velocity(VelocitySample(4.0, [1.0, 2.0, 3.0])), "time went backwards"),
+        (lambda o: o.update_bearing(BearingSample(4.9, [0.0, 0.0, 1.0])), "time went backwards"),
+        (lambda o: o.predict(1.0), "before the observer's committed time"),
+        (lambda o: o.predict(math.nan), "not finite"),
+        (lambda o: o.update_bearing([0.0, 0.0, 1.0]), "expected a BearingSample"),
+        (lambda o: o.update_velocity((1.0, [0.0, 0.0, 1.0])), "expected a VelocitySample"),
+    ],
+)
+def test_rejected_samples_leave_the_state_untouched(call, match: str) -> None:
+    obs = _started_observer()
+    before = _snapshot(obs)
+    with pytest.raises(InvalidSampleError, match=match):
+        call(obs)
+    assert _snapshot(obs) == before
+
+
+def test_a_bearing_arriving_after_its_stretch_was_committed_is_refused() -> None:
+    obs = _started_observer()  # bearings and velocity up to 5 s
+    obs.update_velocity(VelocitySample(9.0, [0.0, 0.0, 0.0]))  # bearing now stale: commits to 9 s
+    before = _snapshot(obs)
+    with pytest.raises(InvalidSampleError, match="older than the observer's committed time"):
+        obs.update_bearing(BearingSample(6.0, [0.0, 0.0, 1.0]))
+    assert _snapshot(obs) == before
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"k_per_s": 0.0}, "k_per_s must be a finite number > 0, got 0.0"),
+        ({"k_star_per_s": -1.0}, "k_star_per_s must be a finite number > 0"),
+        ({"k_per_s": math.nan}, "k_per_s"),
+        ({"k_per_s": "fast"}, "k_per_s must be a number"),
+        ({"n": 1}, "n must be an integer >= 2"),
+        ({"mode": "magic"}, "mode must be one of"),
+        ({"interpolation": "cubic"}, "interpolation must be one of"),
+        ({"m_0_s": ((1.0, 0.5, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))}, "m_0_s must be symmetric"),
+        ({"m_0_s": ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0))}, "positive definite"),
+        ({"m_0_s": ((1.0, 0.0), (0.0, 1.0))}, r"m_0_s must have shape \(3, 3\)"),
+        ({"xh1_0_m": (1.0, math.inf, 0.0)}, "xh1_0_m.*non-finite"),
+        ({"window_buckets": 1}, "window_buckets must be an integer >= 2"),
+        ({"hold_innovation_deg": 120.0}, "hold_innovation_deg must be at most 90"),
+        ({"static_hold": "yes"}, "static_hold must be true or false"),
+        ({"initial_range_m": -5.0}, "initial_range_m"),
+    ],
+)
+def test_bad_configuration_names_the_key(kwargs: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        ObserverConfig(**kwargs)
+
+
+def test_config_from_dict_refuses_unknown_keys() -> None:
+    with pytest.raises(ConfigError, match="unknown observer setting 'kstar'"):
+        ObserverConfig.from_dict({"kstar": 1.0})
+    cfg = ObserverConfig(m_0_s=((2.0, 0.0, 0.0), (0.0, 2.0, 0.0), (0.0, 0.0, 2.0)))
+    assert ObserverConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg
+
+
+# -- warm restart -------------------------------------------------------------------
+
+
+def test_save_and_restore_continue_bit_identically() -> None:
+    stream = generate(
+        scenarios.moving_target(duration_s=60.0),
+        seed=9,
+        noise=Noise(bearing_sigma_deg=1.0, velocity_sigma_mps=0.05, jitter_frac=0.2),
+    )
+    events = list(stream.events())
+    cut = len(events) // 2 + 1  # leave a velocity waiting for its bearing, say
+    obs = BiasObserver()
+    for ev in events[:cut]:
+        (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
+    restored = BiasObserver.from_dict(json.loads(json.dumps(obs.to_dict())))
+    assert _snapshot(restored) == _snapshot(obs)
+    for ev in events[cut:]:
+        if isinstance(ev, BearingSample):
+            a, b = obs.update_bearing(ev), restored.update_bearing(ev)
+            assert np.array_equal(a.x_m, b.x_m) and np.array_equal(a.a_mps, b.a_mps)
+            assert a.status == b.status and a.excitation == b.excitation and a.cond_m == b.cond_m
+        else:
+            obs.update_velocity(ev)
+            restored.update_velocity(ev)
+    assert _snapshot(restored) == _snapshot(obs)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda d: d.update(schema=7), "schema 7"),
+        (lambda d: d.pop("m"), "no 'm'"),
+        (lambda d: d.update(xh1=[1.0, "x", 2.0]), "'xh1'"),
+        (lambda d: d.update(ahat=[1.0, math.nan, 2.0]), "'ahat' must be finite"),
+        (lambda d: d["config"].update(k_per_s=-2.0), "config: k_per_s"),
+        (lambda d: d.update(bearings=[[1.0, [0.0, 0.0, 0.0]]]), "'bearings'.*zero length"),
+        (lambda d: d.update(t_c="soon"), "'t_c' must be a finite number"),
+    ],
+)
+def test_restoring_a_bad_state_names_the_field(mutate, match: str) -> None:
+    d = json.loads(json.dumps(_started_observer().to_dict()))
+    mutate(d)
+    with pytest.raises(StateError, match=match):
+        BiasObserver.from_dict(d)
+
+
+# -- start-up ---------------------------------------------------------------------------
+
+
+def test_initial_range_guess_places_the_first_estimate_on_the_bearing() -> None:
+    obs = BiasObserver(ObserverConfig(initial_range_m=25.0))
+    obs.update_velocity(VelocitySample(0.0, [1.0, 0.0, 0.0]))
+    est = obs.update_bearing(BearingSample(0.0, [0.0, 0.6, 0.8]))
+    assert np.allclose(est.x_m, [0.0, 15.0, 20.0])
+    assert np.array_equal(est.a_mps, np.zeros(3))
+
+
+def test_not_started_until_both_streams_arrive_and_buffers_stay_bounded() -> None:
+    obs = BiasObserver(ObserverConfig(max_buffer=16))
+    for i in range(1000):
+        est = obs.update_bearing(BearingSample(0.01 * i, [0.0, 0.0, 1.0]))
+    assert not obs.started and est.status is Status.STALE
+    assert len(obs.to_dict()["bearings"]) == 1
+    obs.update_velocity(VelocitySample(10.0, [0.0, 0.0, 0.0]))
+    assert obs.started
+    for i in range(1000):  # bearings only: the velocity goes stale and the horizon follows
+        obs.update_bearing(BearingSample(10.0 + 0.01 * i, [0.0, 0.0, 1.0]))
+    assert len(obs.to_dict()["bearings"]) <= 17
+    assert obs.committed_t_s == pytest.approx(19.99)
