@@ -249,6 +249,7 @@ class BiasObserver:
 
     def __init__(self, config: ObserverConfig | None = None) -> None:
         self.config = config if config is not None else ObserverConfig()
+        self._thresholds = self.config.thresholds()
         self.reset()
 
     def reset(self) -> None:
@@ -582,7 +583,7 @@ class BiasObserver:
             excitation=excitation,
             covered_s=covered,
             correction_rel=corr,
-            th=cfg.thresholds(),
+            th=self._thresholds,
         )
         corrected = started and b_age is not None and b_age <= cfg.max_bearing_age_s
         x_out = xhat.copy()
