@@ -44,13 +44,17 @@ import numpy as np
 #: midpoint; at 20 Hz with the paper's k* = 5 this gives 4 sub-steps per sample interval,
 #: which measured 4e-4 relative to a fine RK4 of the continuous equations (1 sub-step: 7e-3).
 SUBSTEP_KH = 0.0625
+#: Longest sub-step (s): ``w = M^-1 xh1`` and ``y*`` move at rates set by ``M^-1`` whatever
+#: the gains. No effect at 10 Hz and above.
+SUBSTEP_MAX_S = 0.1
 #: Cap on sub-steps per interval (keeps a 60 s step cheap; stability does not depend on it).
 MAX_SUBSTEPS = 64
 
 
 def substep_count(k: float, k_star: float, h: float) -> int:
     """Number of sub-steps for an interval of ``h`` seconds with gains ``k``, ``k*`` (1/s)."""
-    return min(MAX_SUBSTEPS, max(1, math.ceil(h * max(k, k_star) / SUBSTEP_KH)))
+    n = max(h * max(k, k_star) / SUBSTEP_KH, h / SUBSTEP_MAX_S)
+    return min(MAX_SUBSTEPS, max(1, math.ceil(n - 1e-9)))
 
 
 def decay_terms(k: float, h: float) -> tuple[float, float]:

@@ -54,6 +54,13 @@ PAPER_NOISE = Noise(position_noise_m=0.5)
 """The paper's noisy case: uniform +-0.5 m on each component of x before y is formed."""
 
 
+def paper_noise(scale: float = 1.0) -> Noise:
+    """The paper's noise model scaled: uniform +-(0.5 * scale) m on each component of x."""
+    if not scale >= 0.0:
+        raise ValueError(f"scale must be >= 0, got {scale}")
+    return Noise(position_noise_m=0.5 * scale)
+
+
 @dataclass(frozen=True)
 class Stream:
     """Sampled data of one run. Shapes: times (T,), vectors (T, n)."""
