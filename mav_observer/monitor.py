@@ -145,10 +145,6 @@ class ExcitationWindow:
         avg.flat[:: self.n + 1] += self._tot_valid / covered
         return max(0.0, float(np.linalg.eigvalsh(avg)[0]))
 
-    def net_correction(self) -> tuple[np.ndarray, np.ndarray]:
-        """Net ``(dx, da)`` applied over the window."""
-        return self._tot_dx.copy(), self._tot_da.copy()
-
     def correction_rel(self, range_m: float) -> float:
         """The convergence indicator (see the module docstring)."""
         dx, da = self._tot_dx, self._tot_da

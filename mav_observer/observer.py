@@ -309,46 +309,42 @@ class BiasObserver:
                 f"{name} at t_s={t_s} has dimension {dim}, the observer has n={self.config.n}"
             )
 
+    def _accept(
+        self, buf: list[_Sample], kind: str, t_s: float, vec: np.ndarray, *, refuse_late: bool
+    ) -> None:
+        """Append a validated sample to its stream and advance; on failure, undo.
+        ``refuse_late``: refuse a sample older than the committed state (bearings)."""
+        if buf and t_s < buf[-1][0]:
+            raise InvalidSampleError(
+                f"{kind} t_s={t_s} is before the previous {kind} sample t_s={buf[-1][0]}: "
+                "time went backwards"
+            )
+        if refuse_late and self._t_c is not None and t_s < self._t_c:
+            raise InvalidSampleError(
+                f"{kind} t_s={t_s} is older than the observer's committed time "
+                f"t_s={self._t_c} (it arrived more than max_{kind}_age_s late)"
+            )
+        buf.append((t_s, vec))
+        try:
+            self._advance()
+        except Exception:
+            buf.pop()
+            raise
+        self._counts[kind] += 1
+
     def update_velocity(self, sample: VelocitySample) -> None:
         """Accept a velocity sample (the paper's ``v``; for a vehicle minus its velocity)."""
         if not isinstance(sample, VelocitySample):
             raise InvalidSampleError(f"expected a VelocitySample, got {type(sample).__name__}")
         self._check_dim(sample.dim, "velocity v_mps", sample.t_s)
-        if self._velocities and sample.t_s < self._velocities[-1][0]:
-            raise InvalidSampleError(
-                f"velocity t_s={sample.t_s} is before the previous velocity sample "
-                f"t_s={self._velocities[-1][0]}: time went backwards"
-            )
-        self._velocities.append((sample.t_s, sample.v_mps))
-        try:
-            self._advance()
-        except Exception:
-            self._velocities.pop()
-            raise
-        self._counts["velocity"] += 1
+        self._accept(self._velocities, "velocity", sample.t_s, sample.v_mps, refuse_late=False)
 
     def update_bearing(self, sample: BearingSample) -> Estimate:
         """Accept a bearing sample and return the estimate at its time."""
         if not isinstance(sample, BearingSample):
             raise InvalidSampleError(f"expected a BearingSample, got {type(sample).__name__}")
         self._check_dim(sample.dim, "bearing y", sample.t_s)
-        if self._bearings and sample.t_s < self._bearings[-1][0]:
-            raise InvalidSampleError(
-                f"bearing t_s={sample.t_s} is before the previous bearing sample "
-                f"t_s={self._bearings[-1][0]}: time went backwards"
-            )
-        if self._t_c is not None and sample.t_s < self._t_c:
-            raise InvalidSampleError(
-                f"bearing t_s={sample.t_s} is older than the observer's committed time "
-                f"t_s={self._t_c} (it arrived more than max_bearing_age_s late)"
-            )
-        self._bearings.append((sample.t_s, sample.y))
-        try:
-            self._advance()
-        except Exception:
-            self._bearings.pop()
-            raise
-        self._counts["bearing"] += 1
+        self._accept(self._bearings, "bearing", sample.t_s, sample.y, refuse_late=True)
         return self._estimate_at(sample.t_s)
 
     def predict(self, t_s: float) -> Estimate:
@@ -434,17 +430,23 @@ class BiasObserver:
                     self._window.add_correction(rec[1], rec[2], rec[3])
             self._trim()
 
+    @staticmethod
+    def _bracket(buf: list[_Sample], a: float, b: float) -> tuple[_Sample | None, _Sample | None]:
+        """The latest sample at or before ``a`` and the first at or after ``b``."""
+        p = q = None
+        for sample in buf:
+            if sample[0] <= a:
+                p = sample
+            elif sample[0] >= b:
+                q = sample
+                break
+        return p, q
+
     def _bearing_at(self, a: float, b: float) -> tuple[np.ndarray, np.ndarray, float, float] | None:
         """Bearing rule on ``[a, b]``: ``(y_p, y_q, t_p, t_q)`` for interpolation (``y_q`` is
         ``y_p`` and ``t_q = t_p`` for a hold), or ``None`` (no usable bearing)."""
         cfg = self.config
-        p = q = None
-        for t, y in self._bearings:
-            if t <= a:
-                p = (t, y)
-            elif t >= b:
-                q = (t, y)
-                break
+        p, q = self._bracket(self._bearings, a, b)
         if p is None:
             return None
         if q is not None and cfg.interpolation == "linear" and q[0] - p[0] <= cfg.max_bearing_age_s:
@@ -454,14 +456,9 @@ class BiasObserver:
         return None
 
     def _velocity_at(self, a: float, b: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Velocity rule on ``[a, b]``, as :meth:`_bearing_at`; held when not interpolated."""
         cfg = self.config
-        p = q = None
-        for t, v in self._velocities:
-            if t <= a:
-                p = (t, v)
-            elif t >= b:
-                q = (t, v)
-                break
+        p, q = self._bracket(self._velocities, a, b)
         if p is None:  # before the first velocity sample: hold it backwards
             first = q if q is not None else self._velocities[0]
             return first[1], first[1], first[0], first[0]
@@ -526,12 +523,16 @@ class BiasObserver:
                 if brule is not None:
                     y = self._lerp(brule, tm)
                     y = y / math.sqrt(float(y @ y))
-                    if hold and self._static(xh1, m, ahat, y, v, hold_speed2, hold_cos):
-                        if records is not None:
-                            records.append(("interval", s0, s0 + hs, y))
-                        continue
-                pred = pred + hs * (v + ahat)
-                xh1, m, ahat = discrete.substep(xh1, m, ahat, y, v, k, ks, hs, estimate_bias=biased)
+                held = (
+                    hold
+                    and y is not None
+                    and self._static(xh1, m, ahat, y, v, hold_speed2, hold_cos)
+                )
+                if not held:
+                    pred = pred + hs * (v + ahat)
+                    xh1, m, ahat = discrete.substep(
+                        xh1, m, ahat, y, v, k, ks, hs, estimate_bias=biased
+                    )
                 if records is not None:
                     records.append(("interval", s0, s0 + hs, y))
             if records is not None and brule is not None:

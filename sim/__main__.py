@@ -15,19 +15,8 @@ import numpy as np
 
 from mav_observer.observer import BiasObserver, ObserverConfig
 from sim import scenarios
-from sim.runner import RunResult, run
+from sim.runner import run
 from sim.stream import Noise, generate
-
-
-def time_to_stay_below(res: RunResult, frac: float) -> float | None:
-    """First time after which the position error stays below ``frac`` of the range
-    (``None``: never)."""
-    bad = np.nonzero(res.pos_err_m >= frac * res.range_m)[0]
-    if len(bad) == 0:
-        return float(res.t_s[0])
-    if bad[-1] + 1 >= len(res.t_s):
-        return None
-    return float(res.t_s[bad[-1] + 1])
 
 
 def observer_config(args: argparse.Namespace, n: int) -> ObserverConfig:
@@ -81,7 +70,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             f"{100 * res.pos_err_m[i] / r:7.2f} {res.bias_err_mps[i]:9.4f} "
             f"{res.excitation[i]:6.3f} {res.cond_m[i]:7.1f}  {res.status[i]}"
         )
-    t10 = time_to_stay_below(res, 0.10)
+    t10 = res.time_to_stay_below(0.10)
     converged = res.status[-1] == "converged"
     verdict = "CONVERGED" if converged else f"NOT CONVERGED ({res.status[-1]})"
     t10_txt = "never" if t10 is None else f"{t10:.1f} s"

@@ -40,16 +40,9 @@ def _steady(res: RunResult) -> dict[str, float]:
         "steady_pos_err_rms_m": float(np.sqrt(np.mean(res.pos_err_m[sel] ** 2))),
         "steady_range_ratio": float(np.mean(rng_est / res.range_m[sel])),
         "final_cond_m": float(res.cond_m[-1]),
-        "time_below_10pct_s": _time_below(res, 0.1),
+        "time_below_10pct_s": res.time_to_stay_below(0.1),
         "max_pos_err_m": float(res.pos_err_m.max()),
     }
-
-
-def _time_below(res: RunResult, frac: float) -> float:
-    bad = np.nonzero(res.pos_err_m >= frac * res.range_m)[0]
-    if len(bad) == 0:
-        return float(res.t_s[0])
-    return float(res.t_s[bad[-1] + 1]) if bad[-1] + 1 < len(res.t_s) else float("nan")
 
 
 def _trajectory(res: RunResult, title: str, path: Path) -> None:
@@ -142,6 +135,10 @@ def paper_figures(
     return summary
 
 
+def _seconds(t: float | None) -> str:
+    return "never" if t is None else f"{t:.1f} s"
+
+
 def summary_lines(summary: dict[str, Any]) -> list[str]:
     lines = []
     for case, m in summary.items():
@@ -149,7 +146,7 @@ def summary_lines(summary: dict[str, Any]) -> list[str]:
             f"{case}: final |x-xhat| {m['final_pos_err_m']:.3g} m, |a-ahat| "
             f"{m['final_bias_err_mps']:.3g} m/s, last-{LAST_S:g}-s RMS error "
             f"{m['steady_pos_err_rms_m']:.3g} m, mean |xhat|/|x| {m['steady_range_ratio']:.3f}, "
-            f"below 10 % of range from {m['time_below_10pct_s']:.1f} s, peak error "
+            f"below 10 % of range from {_seconds(m['time_below_10pct_s'])}, peak error "
             f"{m['max_pos_err_m']:.3g} m, cond(M) {m['final_cond_m']:.1f}"
         )
     return lines

@@ -37,6 +37,16 @@ class RunResult:
     def range_m(self) -> np.ndarray:
         return np.linalg.norm(self.x_true_m, axis=1)
 
+    def time_to_stay_below(self, frac: float) -> float | None:
+        """First time (s) after which the position error stays below ``frac`` of the range;
+        ``None`` if it never does."""
+        bad = np.nonzero(self.pos_err_m >= frac * self.range_m)[0]
+        if len(bad) == 0:
+            return float(self.t_s[0])
+        if bad[-1] + 1 >= len(self.t_s):
+            return None
+        return float(self.t_s[bad[-1] + 1])
+
     def at(self, t_s: float) -> int:
         """Index of the last estimate at or before ``t_s``."""
         return int(np.searchsorted(self.t_s, t_s, side="right") - 1)

@@ -16,7 +16,7 @@ Use :func:`make` with a name from :data:`SCENARIOS`.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -35,8 +35,6 @@ class Scenario:
     x_of_t: Callable[[np.ndarray], np.ndarray]
     xdot_of_t: Callable[[np.ndarray], np.ndarray]
     description: str = ""
-    #: Suggested observer settings for this scenario (gains in 1/s, initial state).
-    suggested: dict[str, object] = field(default_factory=dict)
 
     def x(self, t: np.ndarray | float) -> np.ndarray:
         """True relative position (m) at ``t``; shape (n,) for a scalar ``t``."""
@@ -117,7 +115,6 @@ def paper(duration_s: float = 300.0) -> Scenario:
         x_of_t=x_of_t,
         xdot_of_t=xdot_of_t,
         description="Le Bras et al. 2015, Section 4: target circling 3 m above a camera",
-        suggested={"k_per_s": 0.5, "k_star_per_s": 5.0},
     )
 
 
@@ -157,7 +154,6 @@ def orbit(
         x_of_t=x_of_t,
         xdot_of_t=xdot_of_t,
         description=f"orbit R {radius_m} m, {height_m} m up, {lap_s} s lap, wind {wind.tolist()}",
-        suggested={"k_per_s": 0.2, "k_star_per_s": 0.2},
     )
 
 
@@ -203,7 +199,6 @@ def moving_target(
         x_of_t=offset,
         xdot_of_t=offset_dot,
         description=f"target at {w.tolist()} m/s followed by a weaving vehicle",
-        suggested={"k_per_s": 0.2, "k_star_per_s": 0.2},
     )
 
 
@@ -240,7 +235,6 @@ def straight_pass(
         x_of_t=x_of_t,
         xdot_of_t=xdot_of_t,
         description="straight pass (weak excitation) then hover (none)",
-        suggested={"k_per_s": 0.2, "k_star_per_s": 0.2},
     )
 
 
@@ -273,7 +267,6 @@ def planar(
         x_of_t=x_of_t,
         xdot_of_t=xdot_of_t,
         description="2-D loop around an offset centre",
-        suggested={"k_per_s": 0.2, "k_star_per_s": 0.2},
     )
 
 
