@@ -39,10 +39,10 @@ data since the observer started):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numpy as np
-
+from mav_observer.discrete import sym_eigvals
 from mav_observer.errors import StateError
 from mav_observer.samples import Status
 
@@ -58,23 +58,31 @@ class ExcitationWindow:
         self.window_s = float(window_s)
         self.buckets = int(buckets)
         self.bucket_s = self.window_s / self.buckets
-        # index -> [covered_s, valid_s, yy (n x n), dx (n), da (n)]
+        # per bucket: index, covered_s, valid_s, yy (flat n x n), dx (n), da (n): plain lists
         self._idx: list[int] = []
         self._covered: list[float] = []
         self._valid: list[float] = []
-        self._yy: list[np.ndarray] = []
-        self._dx: list[np.ndarray] = []
-        self._da: list[np.ndarray] = []
+        self._yy: list[list[float]] = []
+        self._dx: list[list[float]] = []
+        self._da: list[list[float]] = []
         self._resum()
+
+    @staticmethod
+    def _sum(vectors: list[list[float]], size: int) -> list[float]:
+        out = [0.0] * size
+        for vec in vectors:
+            for i, x in enumerate(vec):
+                out[i] += x
+        return out
 
     def _resum(self) -> None:
         """Recompute the window totals from the buckets (exact; done when buckets drop)."""
         n = self.n
         self._tot_covered = float(sum(self._covered))
         self._tot_valid = float(sum(self._valid))
-        self._tot_yy = sum(self._yy, np.zeros((n, n)))
-        self._tot_dx = sum(self._dx, np.zeros(n))
-        self._tot_da = sum(self._da, np.zeros(n))
+        self._tot_yy = self._sum(self._yy, n * n)
+        self._tot_dx = self._sum(self._dx, n)
+        self._tot_da = self._sum(self._da, n)
 
     # -- accumulation ---------------------------------------------------------------
     def _bucket(self, t_s: float) -> int:
@@ -86,9 +94,9 @@ class ExcitationWindow:
         self._idx.append(idx)
         self._covered.append(0.0)
         self._valid.append(0.0)
-        self._yy.append(np.zeros((self.n, self.n)))
-        self._dx.append(np.zeros(self.n))
-        self._da.append(np.zeros(self.n))
+        self._yy.append([0.0] * (self.n * self.n))
+        self._dx.append([0.0] * self.n)
+        self._da.append([0.0] * self.n)
         self._drop_old(idx)
         return len(self._idx) - 1
 
@@ -101,14 +109,30 @@ class ExcitationWindow:
                 del lst[:cut]
             self._resum()
 
-    def add_interval(self, t0_s: float, t1_s: float, y: np.ndarray | None) -> None:
-        """Account ``[t0_s, t1_s]`` during which the bearing ``y`` was held (``None``: no
-        usable bearing)."""
-        if t1_s <= t0_s:
+    def add_interval(
+        self, t0_s: float, t1_s: float, yy_integral: Sequence[float] | None, valid_s: float
+    ) -> None:
+        """Account ``[t0_s, t1_s]``: ``valid_s`` of it had a usable bearing, over which
+        ``yy_integral`` is the integral of ``y y^T`` (flat, row-major; ``None`` when
+        ``valid_s`` is 0). An interval spanning buckets is shared out in proportion to time."""
+        span = t1_s - t0_s
+        if span <= 0.0:
             return
-        t0_s = max(t0_s, t1_s - self.window_s)  # older parts would fall out anyway
-        yy = None if y is None else y[:, None] * y
-        t = t0_s
+        idx = math.floor(t0_s / self.bucket_s)
+        if self._idx and self._idx[-1] == idx and t1_s <= (idx + 1) * self.bucket_s:
+            # the usual case: inside the newest bucket
+            self._covered[-1] += span
+            self._tot_covered += span
+            if yy_integral is not None and valid_s > 0.0:
+                self._valid[-1] += valid_s
+                self._tot_valid += valid_s
+                bucket, tot = self._yy[-1], self._tot_yy
+                for i, v in enumerate(yy_integral):
+                    bucket[i] += v
+                    tot[i] += v
+            return
+        start = max(t0_s, t1_s - self.window_s)  # older parts would fall out anyway
+        t = start
         while t < t1_s:
             pos = self._bucket(t)
             end = min(t1_s, (self._idx[pos] + 1) * self.bucket_s)
@@ -117,20 +141,25 @@ class ExcitationWindow:
             dt = end - t
             self._covered[pos] += dt
             self._tot_covered += dt
-            if yy is not None:
-                self._valid[pos] += dt
-                self._tot_valid += dt
-                self._yy[pos] += dt * yy
-                self._tot_yy += dt * yy
+            if yy_integral is not None and valid_s > 0.0:
+                f = dt / span
+                self._valid[pos] += f * valid_s
+                self._tot_valid += f * valid_s
+                bucket, tot = self._yy[pos], self._tot_yy
+                for i, v in enumerate(yy_integral):
+                    bucket[i] += f * v
+                    tot[i] += f * v
             t = end
 
-    def add_correction(self, t_s: float, dx_m: np.ndarray, da_mps: np.ndarray) -> None:
+    def add_correction(self, t_s: float, dx_m: Sequence[float], da_mps: Sequence[float]) -> None:
         """Record the correction applied by a step ending at ``t_s``."""
         pos = self._bucket(t_s)
-        self._dx[pos] += dx_m
-        self._da[pos] += da_mps
-        self._tot_dx += dx_m
-        self._tot_da += da_mps
+        bx, ba, tx, ta = self._dx[pos], self._da[pos], self._tot_dx, self._tot_da
+        for i in range(self.n):
+            bx[i] += dx_m[i]
+            ba[i] += da_mps[i]
+            tx[i] += dx_m[i]
+            ta[i] += da_mps[i]
 
     # -- read-out -------------------------------------------------------------------
     def covered_s(self) -> float:
@@ -141,15 +170,19 @@ class ExcitationWindow:
         covered = self._tot_covered
         if covered <= 0.0:
             return 0.0
-        avg = -self._tot_yy / covered
-        avg.flat[:: self.n + 1] += self._tot_valid / covered
-        return max(0.0, float(np.linalg.eigvalsh(avg)[0]))
+        n = self.n
+        avg = [-v / covered for v in self._tot_yy]
+        for i in range(n):
+            avg[i * n + i] += self._tot_valid / covered
+        return max(0.0, sym_eigvals(avg, n)[0])
 
     def correction_rel(self, range_m: float) -> float:
         """The convergence indicator (see the module docstring)."""
         dx, da = self._tot_dx, self._tot_da
         scale = max(range_m, 1e-9)
-        return (math.sqrt(float(dx @ dx)) + self._tot_covered * math.sqrt(float(da @ da))) / scale
+        ndx = math.sqrt(sum(v * v for v in dx))
+        nda = math.sqrt(sum(v * v for v in da))
+        return (ndx + self._tot_covered * nda) / scale
 
     # -- persistence ----------------------------------------------------------------
     def to_dict(self) -> dict[str, object]:
@@ -159,9 +192,9 @@ class ExcitationWindow:
             "idx": list(self._idx),
             "covered": list(self._covered),
             "valid": list(self._valid),
-            "yy": [a.tolist() for a in self._yy],
-            "dx": [a.tolist() for a in self._dx],
-            "da": [a.tolist() for a in self._da],
+            "yy": [list(a) for a in self._yy],
+            "dx": [list(a) for a in self._dx],
+            "da": [list(a) for a in self._da],
         }
 
     @classmethod
@@ -171,9 +204,9 @@ class ExcitationWindow:
             win._idx = [int(i) for i in d["idx"]]  # type: ignore[union-attr]
             win._covered = [float(c) for c in d["covered"]]  # type: ignore[union-attr]
             win._valid = [float(c) for c in d["valid"]]  # type: ignore[union-attr]
-            win._yy = [np.array(a, dtype=float).reshape(n, n) for a in d["yy"]]  # type: ignore[union-attr]
-            win._dx = [np.array(a, dtype=float).reshape(n) for a in d["dx"]]  # type: ignore[union-attr]
-            win._da = [np.array(a, dtype=float).reshape(n) for a in d["da"]]  # type: ignore[union-attr]
+            win._yy = [_floats(a, n * n) for a in d["yy"]]  # type: ignore[union-attr]
+            win._dx = [_floats(a, n) for a in d["dx"]]  # type: ignore[union-attr]
+            win._da = [_floats(a, n) for a in d["da"]]  # type: ignore[union-attr]
         except (KeyError, TypeError, ValueError) as exc:
             raise StateError(f"monitor state is malformed: {exc}") from exc
         lengths = {len(win._idx), len(win._covered), len(win._valid), len(win._yy), len(win._dx)}
@@ -181,6 +214,19 @@ class ExcitationWindow:
             raise StateError("monitor state is malformed: bucket lists differ in length")
         win._resum()
         return win
+
+
+def _floats(values: object, size: int) -> list[float]:
+    """A list of ``size`` finite floats (nested lists flattened), or ValueError."""
+    flat: list[float] = []
+    for v in values:  # type: ignore[attr-defined]
+        if isinstance(v, list):
+            flat.extend(float(x) for x in v)
+        else:
+            flat.append(float(v))
+    if len(flat) != size or not all(math.isfinite(x) for x in flat):
+        raise ValueError(f"expected {size} finite numbers, got {values!r}")
+    return flat
 
 
 @dataclass(frozen=True)
@@ -230,6 +276,11 @@ def next_status(
         return StatusMemory(Status.NOT_OBSERVABLE, None)
     since = t_s if memory.observable_since_s is None else memory.observable_since_s
     tol = th.converged_tol * (2.0 if memory.status is Status.CONVERGED else 1.0)
-    if t_s - since >= th.window_s and correction_rel <= tol:
-        return StatusMemory(Status.CONVERGED, since)
-    return StatusMemory(Status.CONVERGING, since)
+    status = (
+        Status.CONVERGED
+        if t_s - since >= th.window_s and correction_rel <= tol
+        else Status.CONVERGING
+    )
+    if status is memory.status and since == memory.observable_since_s:
+        return memory  # unchanged (the common case): no new object
+    return StatusMemory(status, since)

@@ -3,7 +3,8 @@
 :class:`BiasObserver` turns separately arriving, irregularly timed velocity and bearing
 samples into estimates of the relative position ``x`` and the constant velocity term ``a``
 (see :mod:`mav_observer.samples` for the conventions and :mod:`mav_observer.discrete` for the
-maths). Pure: numpy only, no I/O, no clock; time is whatever the samples carry.
+maths). Pure: no I/O, no clock; time is whatever the samples carry. Inside, vectors are lists
+of floats (see :mod:`mav_observer.discrete`); numpy arrays only at the interface.
 
 How samples become inputs of the continuous equations
 ------------------------------------------------------
@@ -51,6 +52,16 @@ from mav_observer.monitor import ExcitationWindow, MonitorThresholds, StatusMemo
 from mav_observer.samples import MIN_DIM, BearingSample, Estimate, Status, VelocitySample
 
 MODES = ("biased", "bias_free")
+#: Sample times closer than this to an interval end are not made breakpoints, and a
+#: provisional estimate this close to the committed state is a pure prediction (s). With
+#: linear interpolation the inputs are evaluated at each sub-step's midpoint from the samples
+#: around it, so a breakpoint only matters for a kink of the interpolant: merging a sliver
+#: of a few ms costs far less than the sub-step it would take (two streams a few ms apart is
+#: the usual MAVLink case).
+MIN_INTERVAL_S = 0.01
+#: The excitation level describes the geometry over the monitor's window (seconds): it is
+#: evaluated again at most this often (s of observer time), not for every estimate.
+DIAGNOSTICS_PERIOD_S = 0.5
 INTERPOLATIONS = ("linear", "hold")
 #: Version of the dictionary written by :meth:`BiasObserver.to_dict`.
 STATE_SCHEMA = 1
@@ -208,15 +219,15 @@ class ObserverConfig:
         return cls(**d)
 
     # -- derived ------------------------------------------------------------------
-    def initial_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(xh1, M, ahat)`` from the configured initial ``(xh1, M, zs)``; in bias-free
-        mode ``ahat = 0`` (``zs`` is not used)."""
+    def initial_state(self) -> tuple[list[float], list[float], list[float]]:
+        """``(xh1, M, ahat)`` from the configured initial ``(xh1, M, zs)`` (``M`` flat,
+        row-major); in bias-free mode ``ahat = 0`` (``zs`` is not used)."""
         n = self.n
-        xh1 = np.zeros(n) if self.xh1_0_m is None else np.array(self.xh1_0_m)
-        m = np.eye(n) if self.m_0_s is None else np.array(self.m_0_s)
+        xh1 = [0.0] * n if self.xh1_0_m is None else list(self.xh1_0_m)
+        m = discrete.identity(n) if self.m_0_s is None else [v for row in self.m_0_s for v in row]
         if self.mode == "bias_free":
-            return xh1, m, np.zeros(n)
-        zs = np.zeros(n) if self.zs_0_mps is None else np.array(self.zs_0_mps)
+            return xh1, m, [0.0] * n
+        zs = [0.0] * n if self.zs_0_mps is None else list(self.zs_0_mps)
         return xh1, m, discrete.ahat_from_paper_state(xh1, m, zs)
 
     def thresholds(self) -> MonitorThresholds:
@@ -230,16 +241,42 @@ class ObserverConfig:
         )
 
 
-_Sample = tuple[float, np.ndarray]
-#: ("interval", t0_s, t1_s, y or None) or ("correction", t_s, dx_m, da_mps)
+_Sample = tuple[float, list[float]]
+
+
+def _add_outer(acc: list[float], y: list[float], w: float) -> None:
+    """``acc += w y y^T`` in place (flat, row-major)."""
+    if len(y) == 3:
+        y0, y1, y2 = y[0] * w, y[1] * w, y[2] * w
+        acc[0] += y0 * y[0]
+        acc[1] += y0 * y[1]
+        acc[2] += y0 * y[2]
+        acc[3] += y1 * y[0]
+        acc[4] += y1 * y[1]
+        acc[5] += y1 * y[2]
+        acc[6] += y2 * y[0]
+        acc[7] += y2 * y[1]
+        acc[8] += y2 * y[2]
+        return
+    k = 0
+    for p in y:
+        for q in y:
+            acc[k] += w * p * q
+            k += 1
+
+
+#: ("interval", t0_s, t1_s, integral of y y^T or None, valid_s) or
+#: ("correction", t_s, dx_m, da_mps)
 _Record = tuple[Any, ...]
 
 
 @dataclass
 class _State:
-    xh1: np.ndarray
-    m: np.ndarray
-    ahat: np.ndarray
+    """Lists of floats; ``m`` flat row-major."""
+
+    xh1: list[float]
+    m: list[float]
+    ahat: list[float]
 
 
 class BiasObserver:
@@ -249,7 +286,12 @@ class BiasObserver:
 
     def __init__(self, config: ObserverConfig | None = None) -> None:
         self.config = config if config is not None else ObserverConfig()
-        self._thresholds = self.config.thresholds()
+        cfg = self.config
+        self._thresholds = cfg.thresholds()
+        # per-step constants
+        self._hold_speed2 = cfg.hold_speed_mps**2
+        self._hold_cos = math.cos(math.radians(cfg.hold_innovation_deg))
+        self._biased = cfg.mode == "biased"
         self.reset()
 
     def reset(self) -> None:
@@ -263,6 +305,9 @@ class BiasObserver:
         self._window = ExcitationWindow(cfg.n, cfg.window_s, cfg.window_buckets)
         self._memory = StatusMemory()
         self._estimate: Estimate | None = None
+        self._diag: tuple[float, float] | None = None  # t_s, excitation
+        self._cond: tuple[float | None, float] | None = None  # committed t_s, cond(M)
+        self._xhat_c: list[float] | None = None  # xhat of the committed state
         self._counts = {"velocity": 0, "bearing": 0}
 
     # -- public properties ----------------------------------------------------------
@@ -290,17 +335,18 @@ class BiasObserver:
     def zs_mps(self) -> np.ndarray:
         """The paper's dual state ``zs`` of the committed state (m/s)."""
         s = self._state
-        return discrete.zs_from_state(s.ahat, s.xh1, s.m)
+        return np.array(discrete.zs_from_state(s.ahat, s.xh1, s.m))
 
     @property
     def xh1_m(self) -> np.ndarray:
         """The first filter ``xh1`` of the committed state (m)."""
-        return self._state.xh1.copy()
+        return np.array(self._state.xh1)
 
     @property
     def m_s(self) -> np.ndarray:
         """The matrix ``M`` of the committed state (s)."""
-        return self._state.m.copy()
+        n = self.config.n
+        return np.array(self._state.m).reshape(n, n)
 
     # -- input ----------------------------------------------------------------------
     def _check_dim(self, dim: int, name: str, t_s: float) -> None:
@@ -310,7 +356,7 @@ class BiasObserver:
             )
 
     def _accept(
-        self, buf: list[_Sample], kind: str, t_s: float, vec: np.ndarray, *, refuse_late: bool
+        self, buf: list[_Sample], kind: str, t_s: float, vec: list[float], *, refuse_late: bool
     ) -> None:
         """Append a validated sample to its stream and advance; on failure, undo.
         ``refuse_late``: refuse a sample older than the committed state (bearings)."""
@@ -326,7 +372,7 @@ class BiasObserver:
             )
         buf.append((t_s, vec))
         try:
-            self._advance()
+            self._advance(lazy=not refuse_late)
         except Exception:
             buf.pop()
             raise
@@ -337,26 +383,45 @@ class BiasObserver:
         if not isinstance(sample, VelocitySample):
             raise InvalidSampleError(f"expected a VelocitySample, got {type(sample).__name__}")
         self._check_dim(sample.dim, "velocity v_mps", sample.t_s)
-        self._accept(self._velocities, "velocity", sample.t_s, sample.v_mps, refuse_late=False)
+        self._accept(
+            self._velocities, "velocity", sample.t_s, sample.v_mps.tolist(), refuse_late=False
+        )
 
     def update_bearing(self, sample: BearingSample) -> Estimate:
         """Accept a bearing sample and return the estimate at its time."""
         if not isinstance(sample, BearingSample):
             raise InvalidSampleError(f"expected a BearingSample, got {type(sample).__name__}")
         self._check_dim(sample.dim, "bearing y", sample.t_s)
-        self._accept(self._bearings, "bearing", sample.t_s, sample.y, refuse_late=True)
+        self._accept(self._bearings, "bearing", sample.t_s, sample.y.tolist(), refuse_late=True)
         return self._estimate_at(sample.t_s)
 
-    def predict(self, t_s: float) -> Estimate:
-        """Estimate at ``t_s`` from the data so far, without committing anything.
+    def _update_velocity_trusted(self, t_s: float, v_mps: list[float]) -> None:
+        """:meth:`update_velocity` for a caller in this package that already checked the
+        sample (finite floats, the observer's dimension): no sample object is built."""
+        self._accept(self._velocities, "velocity", t_s, v_mps, refuse_late=False)
 
-        Beyond the latest bearing its value is held for ``max_bearing_age_s``; after that the
-        observer only predicts (``xhat' = v + ahat``) and the status is ``stale``.
+    def _update_bearing_trusted(self, t_s: float, y: list[float]) -> Estimate:
+        """:meth:`update_bearing` for a caller in this package that already checked the
+        sample (finite floats, unit length, the observer's dimension)."""
+        self._accept(self._bearings, "bearing", t_s, y, refuse_late=True)
+        return self._estimate_at(t_s)
+
+    def predict(self, t_s: float) -> Estimate:
+        """Estimate at ``t_s`` from the data so far.
+
+        Integrates what the samples received determine (up to the data horizon, as any later
+        update would), then predicts the rest (``xhat' = v + ahat``, not committed). Once the
+        latest bearing is older than ``max_bearing_age_s`` the status is ``stale``.
         """
         t = float(t_s)
         if not math.isfinite(t):
             raise InvalidSampleError(f"t_s={t_s!r} is not finite")
         if self._t_c is not None and t < self._t_c:
+            raise InvalidSampleError(
+                f"predict t_s={t} is before the observer's committed time t_s={self._t_c}"
+            )
+        self._advance()
+        if self._t_c is not None and t < self._t_c:  # the data already reaches past t
             raise InvalidSampleError(
                 f"predict t_s={t} is before the observer's committed time t_s={self._t_c}"
             )
@@ -377,7 +442,8 @@ class BiasObserver:
             y0 = self._bearings[-1][1]
             _, m, _ = cfg.initial_state()
             # xhat = M ahat + xh1 with ahat = 0
-            self._state = _State(cfg.initial_range_m * y0, m, np.zeros(cfg.n))
+            self._state = _State([cfg.initial_range_m * c for c in y0], m, [0.0] * cfg.n)
+            self._xhat_c = None
         self._t_c = t0
         self._trim()
 
@@ -411,12 +477,18 @@ class BiasObserver:
             horizon = max(tb, tv)
         return horizon
 
-    def _advance(self) -> None:
+    def _advance(self, *, lazy: bool = False) -> None:
         """Integrate the committed state up to the data horizon. Computes first, then
-        commits: if the maths raised, nothing would have changed."""
+        commits: if the maths raised, nothing would have changed. ``lazy`` (a velocity
+        sample): leave it to the next bearing unless the bearing is stale or a buffer full."""
         self._start_if_ready()
         if self._t_c is None:
             return
+        if lazy:
+            cfg = self.config
+            stale = self._velocities[-1][0] > self._bearings[-1][0] + cfg.max_bearing_age_s
+            if not stale and len(self._velocities) <= cfg.max_buffer:
+                return
         horizon = self._horizon()
         if horizon > self._t_c:
             records: list[_Record] = []
@@ -425,154 +497,214 @@ class BiasObserver:
             self._t_c = horizon
             for rec in records:
                 if rec[0] == "interval":
-                    self._window.add_interval(rec[1], rec[2], rec[3])
-                else:
+                    self._window.add_interval(rec[1], rec[2], rec[3], rec[4])
+                elif rec[0] == "correction":
                     self._window.add_correction(rec[1], rec[2], rec[3])
+                else:
+                    self._xhat_c = rec[1]
             self._trim()
 
     @staticmethod
-    def _bracket(buf: list[_Sample], a: float, b: float) -> tuple[_Sample | None, _Sample | None]:
-        """The latest sample at or before ``a`` and the first at or after ``b``."""
-        p = q = None
+    def _bracket(buf: list[_Sample], t: float) -> tuple[_Sample | None, _Sample | None]:
+        """The latest sample at or before ``t`` and the first one after it."""
+        p = None
         for sample in buf:
-            if sample[0] <= a:
+            if sample[0] <= t:
                 p = sample
-            elif sample[0] >= b:
-                q = sample
-                break
-        return p, q
+            else:
+                return p, sample
+        return p, None
 
-    def _bearing_at(self, a: float, b: float) -> tuple[np.ndarray, np.ndarray, float, float] | None:
-        """Bearing rule on ``[a, b]``: ``(y_p, y_q, t_p, t_q)`` for interpolation (``y_q`` is
-        ``y_p`` and ``t_q = t_p`` for a hold), or ``None`` (no usable bearing)."""
+    def _bearing_at(self, t: float) -> list[float] | None:
+        """The bearing in force at ``t`` (unit vector), or ``None`` when there is no usable one:
+        interpolated between the samples around ``t`` when at most ``max_bearing_age_s`` apart,
+        else the earlier one held for at most ``max_bearing_age_s``."""
         cfg = self.config
-        p, q = self._bracket(self._bearings, a, b)
+        p, q = self._bracket(self._bearings, t)
         if p is None:
             return None
         if q is not None and cfg.interpolation == "linear" and q[0] - p[0] <= cfg.max_bearing_age_s:
-            return p[1], q[1], p[0], q[0]
-        if b <= p[0] + cfg.max_bearing_age_s:
-            return p[1], p[1], p[0], p[0]
+            y = self._lerp(p, q, t)
+            if len(y) == 3:
+                inv = 1.0 / math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+                return [y[0] * inv, y[1] * inv, y[2] * inv]
+            inv = 1.0 / math.sqrt(discrete.dot(y, y))
+            return [c * inv for c in y]
+        if t <= p[0] + cfg.max_bearing_age_s:
+            return p[1]
         return None
 
-    def _velocity_at(self, a: float, b: float) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Velocity rule on ``[a, b]``, as :meth:`_bearing_at`; held when not interpolated."""
+    def _velocity_at(self, t: float) -> list[float]:
+        """The velocity at ``t``: interpolated as bearings are, else the latest one held (the
+        first one held backwards before it)."""
         cfg = self.config
-        p, q = self._bracket(self._velocities, a, b)
-        if p is None:  # before the first velocity sample: hold it backwards
-            first = q if q is not None else self._velocities[0]
-            return first[1], first[1], first[0], first[0]
+        p, q = self._bracket(self._velocities, t)
+        if p is None:
+            return (q if q is not None else self._velocities[0])[1]
         if (
             q is not None
             and cfg.interpolation == "linear"
             and q[0] - p[0] <= cfg.max_velocity_age_s
         ):
-            return p[1], q[1], p[0], q[0]
-        return p[1], p[1], p[0], p[0]
+            return self._lerp(p, q, t)
+        return p[1]
 
     @staticmethod
-    def _lerp(rule: tuple[np.ndarray, np.ndarray, float, float], t: float) -> np.ndarray:
-        v0, v1, t0, t1 = rule
-        if t1 <= t0:
-            return v0
-        f = (t - t0) / (t1 - t0)
-        return v0 + f * (v1 - v0)
+    def _lerp(p: _Sample, q: _Sample, t: float) -> list[float]:
+        f = (t - p[0]) / (q[0] - p[0])
+        a, b = p[1], q[1]
+        if len(a) == 3:
+            return [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
+        return [x + f * (y - x) for x, y in zip(a, b, strict=True)]
 
     def _breakpoints(self, t0: float, t1: float) -> list[float]:
+        """``t0``, the sample times and bearing expiries between, ``t1``; with linear
+        interpolation, points closer than :data:`MIN_INTERVAL_S` to the previous one merge."""
         cfg = self.config
-        pts = {t0, t1}
-        for t, _ in self._velocities:
-            if t0 < t < t1:
-                pts.add(t)
+        inner = [t for t, _ in self._velocities if t0 < t < t1]
+        age = cfg.max_bearing_age_s
         for t, _ in self._bearings:
             if t0 < t < t1:
-                pts.add(t)
-            expiry = t + cfg.max_bearing_age_s
-            if t0 < expiry < t1:
-                pts.add(expiry)
-        return sorted(pts)
+                inner.append(t)
+            if t0 < t + age < t1:
+                inner.append(t + age)
+        if not inner:
+            return [t0, t1]
+        inner.sort()
+        gap = MIN_INTERVAL_S if cfg.interpolation == "linear" else 0.0
+        pts = [t0]
+        for t in inner:
+            if t - pts[-1] >= gap and t1 - t >= gap:
+                pts.append(t)
+        pts.append(t1)
+        return pts
+
+    def _xhat_committed(self) -> list[float]:
+        """``xhat`` of the committed state (cached between commits)."""
+        if self._xhat_c is None:
+            s = self._state
+            self._xhat_c = discrete.estimate_from_state(s.ahat, s.xh1, s.m)
+        return self._xhat_c
 
     def _integrate(
-        self, state: _State, t0: float, t1: float, records: list[_Record] | None
+        self,
+        state: _State,
+        t0: float,
+        t1: float,
+        records: list[_Record] | None,
+        *,
+        predict_only: bool = False,
     ) -> _State:
         """Integrate from ``t0`` to ``t1`` and return the new state (the input is not
         modified). With ``records`` (committed steps), append what the monitor's window must
-        account: held-bearing intervals and the corrections applied."""
+        account over ``[t0, t1]``: the integral of ``y y^T`` over the time with a usable
+        bearing, that time, and the correction applied. ``predict_only``: no correction."""
         cfg = self.config
         k, ks = cfg.k_per_s, cfg.k_star_per_s
-        biased = cfg.mode == "biased"
+        biased = self._biased
         hold = cfg.static_hold
-        hold_speed2 = cfg.hold_speed_mps**2
-        hold_cos = math.cos(math.radians(cfg.hold_innovation_deg))
+        hold_speed2, hold_cos = self._hold_speed2, self._hold_cos
         xh1, m, ahat = state.xh1, state.m, state.ahat
-        pts = self._breakpoints(t0, t1)
-        for a, b in itertools.pairwise(pts):
-            brule = self._bearing_at(a, b)
-            vrule = self._velocity_at(a, b)
-            span = b - a
-            n_sub = discrete.substep_count(k, ks, span) if brule is not None else 1
-            hs = span / n_sub
-            x_before = m @ ahat + xh1
+        n = cfg.n
+        keep = records is not None
+        if keep:
+            x_before = (
+                self._xhat_committed()
+                if state is self._state
+                else (discrete.estimate_from_state(ahat, xh1, m))
+            )
             a_before = ahat
-            pred = 0.0
+            pred = [0.0] * n
+            yy = [0.0] * (n * n)
+            valid = 0.0
+            corrected_any = False
+        for a, b in itertools.pairwise(self._breakpoints(t0, t1)):
+            span = b - a
+            y_mid = None if predict_only else self._bearing_at(0.5 * (a + b))
+            corrected = y_mid is not None
+            n_sub = discrete.substep_count(k, ks, span) if corrected else 1
+            hs = span / n_sub
             for i in range(n_sub):
-                s0 = a + i * hs
-                tm = s0 + 0.5 * hs
-                v = self._lerp(vrule, tm)
-                y = None
-                if brule is not None:
-                    y = self._lerp(brule, tm)
-                    y = y / math.sqrt(float(y @ y))
+                tm = a + (i + 0.5) * hs
+                v = self._velocity_at(tm)
+                if not corrected:
+                    y = None
+                elif n_sub == 1:
+                    y = y_mid
+                else:
+                    y = self._bearing_at(tm)
                 held = (
                     hold
                     and y is not None
                     and self._static(xh1, m, ahat, y, v, hold_speed2, hold_cos)
                 )
                 if not held:
-                    pred = pred + hs * (v + ahat)
+                    if keep:
+                        for j in range(n):
+                            pred[j] += hs * (v[j] + ahat[j])
                     xh1, m, ahat = discrete.substep(
                         xh1, m, ahat, y, v, k, ks, hs, estimate_bias=biased
                     )
-                if records is not None:
-                    records.append(("interval", s0, s0 + hs, y))
-            if records is not None and brule is not None:
-                dx = (m @ ahat + xh1) - (x_before + pred)
-                records.append(("correction", b, dx, ahat - a_before))
+                if keep and y is not None:
+                    valid += hs
+                    corrected_any = True
+                    _add_outer(yy, y, hs)
+        if keep:
+            records.append(("interval", t0, t1, yy if valid > 0.0 else None, valid))  # type: ignore[union-attr]
+            x_after = discrete.estimate_from_state(ahat, xh1, m)
+            records.append(("xhat", x_after))  # type: ignore[union-attr]
+            if corrected_any:
+                dx = [x_after[j] - x_before[j] - pred[j] for j in range(n)]
+                da = [ahat[j] - a_before[j] for j in range(n)]
+                records.append(("correction", t1, dx, da))  # type: ignore[union-attr]
         return _State(xh1, m, ahat)
 
     @staticmethod
     def _static(
-        xh1: np.ndarray,
-        m: np.ndarray,
-        ahat: np.ndarray,
-        y: np.ndarray,
-        v: np.ndarray,
+        xh1: list[float],
+        m: list[float],
+        ahat: list[float],
+        y: list[float],
+        v: list[float],
         speed2_max: float,
         cos_min: float,
     ) -> bool:
         """Static-geometry test: estimated relative velocity ``v + ahat`` at most the hold
         speed, and the bearing ``y`` within the hold angle of the estimate ``xhat``."""
-        rel = v + ahat
-        if float(rel @ rel) > speed2_max:
+        rel2 = 0.0
+        for p, q in zip(v, ahat, strict=True):
+            rel2 += (p + q) * (p + q)
+        if rel2 > speed2_max:
             return False
-        xhat = m @ ahat + xh1
-        r2 = float(xhat @ xhat)
+        xhat = discrete.estimate_from_state(ahat, xh1, m)
+        r2 = discrete.dot(xhat, xhat)
         if r2 <= 0.0:
             return False
-        return float(xhat @ y) >= cos_min * math.sqrt(r2)
+        return discrete.dot(xhat, y) >= cos_min * math.sqrt(r2)
 
     # -- output ---------------------------------------------------------------------
     def _estimate_at(self, t: float) -> Estimate:
         cfg = self.config
         started = self._t_c is not None
         state = self._state
+        xhat = self._xhat_committed()
         if started and t > self._t_c:  # type: ignore[operator]
-            state = self._integrate(state, self._t_c, t, None)  # type: ignore[arg-type]
-        xhat = discrete.estimate_from_state(state.ahat, state.xh1, state.m)
-        rng = math.sqrt(float(xhat @ xhat))
+            # beyond the committed state: a prediction, xhat' = v + ahat (exact for the
+            # linear velocity, never committed). The bearings since are applied when the
+            # velocity around them is known, at the next commit.
+            dt = t - self._t_c  # type: ignore[operator]
+            v = self._velocity_at(self._t_c + 0.5 * dt)  # type: ignore[operator]
+            a = state.ahat
+            xhat = [xhat[j] + dt * (v[j] + a[j]) for j in range(cfg.n)]
+        rng = math.sqrt(discrete.dot(xhat, xhat))
         b_age = t - self._bearings[-1][0] if self._bearings else None
         v_age = t - self._velocities[-1][0] if self._velocities else None
-        excitation = self._window.excitation()
+        if self._diag is None or not 0.0 <= t - self._diag[0] < DIAGNOSTICS_PERIOD_S:
+            self._diag = (t, self._window.excitation())
+        excitation = self._diag[1]
+        if self._cond is None or self._cond[0] != self._t_c:  # cond(M) of the committed state
+            self._cond = (self._t_c, discrete.cond2(self._state.m, cfg.n))
+        cond = self._cond[1]
         covered = self._window.covered_s()
         corr = self._window.correction_rel(rng)
         self._memory = next_status(
@@ -587,8 +719,8 @@ class BiasObserver:
             th=self._thresholds,
         )
         corrected = started and b_age is not None and b_age <= cfg.max_bearing_age_s
-        x_out = xhat.copy()
-        a_out = state.ahat.copy()
+        x_out = np.array(xhat)
+        a_out = np.array(state.ahat)
         x_out.setflags(write=False)
         a_out.setflags(write=False)
         est = Estimate(
@@ -597,7 +729,7 @@ class BiasObserver:
             a_mps=a_out,
             range_m=rng,
             excitation=excitation,
-            cond_m=_cond(state.m),
+            cond_m=cond,
             status=self._memory.status,
             corrected=bool(corrected),
             bearing_age_s=b_age,
@@ -612,15 +744,16 @@ class BiasObserver:
         """The whole observer as a JSON-serialisable dictionary; :meth:`from_dict` restores
         it exactly (floats round-trip through JSON bit for bit)."""
         s = self._state
+        n = self.config.n
         return {
             "schema": STATE_SCHEMA,
             "config": self.config.to_dict(),
             "t_c": self._t_c,
-            "xh1": s.xh1.tolist(),
-            "m": s.m.tolist(),
-            "ahat": s.ahat.tolist(),
-            "bearings": [[t, y.tolist()] for t, y in self._bearings],
-            "velocities": [[t, v.tolist()] for t, v in self._velocities],
+            "xh1": list(s.xh1),
+            "m": [s.m[i * n : (i + 1) * n] for i in range(n)],
+            "ahat": list(s.ahat),
+            "bearings": [[t, list(y)] for t, y in self._bearings],
+            "velocities": [[t, list(v)] for t, v in self._velocities],
             "window": self._window.to_dict(),
             "memory": {
                 "status": str(self._memory.status),
@@ -628,6 +761,7 @@ class BiasObserver:
             },
             "counts": dict(self._counts),
             "estimate": None if self._estimate is None else self._estimate.to_dict(),
+            "excitation_cache": None if self._diag is None else list(self._diag),
         }
 
     @classmethod
@@ -646,10 +780,11 @@ class BiasObserver:
             raise StateError("observer state has no 'config'") from exc
         obs = cls(config)
         n = config.n
+        obs._xhat_c = None
         obs._state = _State(
-            _field_array(d, "xh1", (n,)),
-            _field_array(d, "m", (n, n)),
-            _field_array(d, "ahat", (n,)),
+            _field_array(d, "xh1", (n,)).tolist(),
+            _field_array(d, "m", (n, n)).ravel().tolist(),
+            _field_array(d, "ahat", (n,)).tolist(),
         )
         t_c = d.get("t_c")
         if t_c is not None:
@@ -674,13 +809,16 @@ class BiasObserver:
         est = d.get("estimate")
         if est is not None:
             obs._estimate = _estimate_from_dict(est)
+        diag = d.get("excitation_cache")
+        if diag is not None:
+            try:
+                t_d, e_d = (float(v) for v in diag)
+            except (TypeError, ValueError) as exc:
+                raise StateError(
+                    f"observer state 'excitation_cache' is malformed: {diag!r}"
+                ) from exc
+            obs._diag = (t_d, e_d)
         return obs
-
-
-def _cond(m: np.ndarray) -> float:
-    """2-norm condition number of ``m`` (singular values, no vectors)."""
-    sv = np.linalg.svd(m, compute_uv=False)
-    return float(sv[0] / sv[-1]) if sv[-1] > 0.0 else math.inf
 
 
 def _field(d: dict[str, Any], key: str, typ: type) -> Any:
@@ -726,7 +864,7 @@ def _field_samples(d: dict[str, Any], key: str, n: int, *, unit: bool) -> list[_
         if vec.shape != (n,):
             raise StateError(f"observer state {key!r} holds a sample of dimension {vec.shape[0]}")
         # keep the stored bits exactly (a BearingSample could re-normalise)
-        out.append((float(item[0]), np.array(item[1], dtype=float)))
+        out.append((float(item[0]), [float(c) for c in item[1]]))
     return out
 
 

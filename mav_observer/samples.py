@@ -35,6 +35,15 @@ MIN_DIM = 2
 
 def _frozen_vector(name: str, value: object, t_s: float) -> np.ndarray:
     """Return ``value`` as a read-only 1-D float64 copy, or raise naming ``name``."""
+    if type(value) is tuple and len(value) >= MIN_DIM and all(type(c) is float for c in value):
+        # fast path for a tuple of plain floats (the MAVLink adapters): check in Python
+        if not all(math.isfinite(c) for c in value):
+            raise InvalidSampleError(
+                f"{name}={list(value)} at t_s={t_s} contains a non-finite value"
+            )
+        arr = np.array(value)
+        arr.setflags(write=False)
+        return arr
     try:
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -113,11 +122,26 @@ class BearingSample:
     def from_vector(cls, t_s: float, direction: object) -> BearingSample:
         """Bearing along any finite, non-zero ``direction`` vector (normalised here)."""
         t = _check_time(t_s)
-        d = _frozen_vector("direction", direction, t)
-        norm = float(np.linalg.norm(d))
-        if not norm > 0.0 or not math.isfinite(norm):
-            raise InvalidSampleError(f"direction={d.tolist()} at t_s={t} has no usable length")
-        return cls(t, d / norm)
+        if isinstance(direction, tuple | list) and all(type(c) is float for c in direction):
+            # fast path for plain floats (the MAVLink adapters): no numpy until the end
+            n2 = sum(c * c for c in direction)
+            if len(direction) < MIN_DIM or not (n2 > 0.0 and math.isfinite(n2)):
+                raise InvalidSampleError(
+                    f"direction={list(direction)} at t_s={t} has no usable length or dimension"
+                )
+            inv = 1.0 / math.sqrt(n2)
+            y = np.array([c * inv for c in direction])
+        else:
+            d = _frozen_vector("direction", direction, t)
+            norm = math.sqrt(float(d @ d))
+            if not norm > 0.0 or not math.isfinite(norm):
+                raise InvalidSampleError(f"direction={d.tolist()} at t_s={t} has no usable length")
+            y = d / norm
+        y.setflags(write=False)
+        obj = object.__new__(cls)  # already validated: skip __post_init__
+        object.__setattr__(obj, "t_s", t)
+        object.__setattr__(obj, "y", y)
+        return obj
 
     @property
     def dim(self) -> int:
@@ -142,7 +166,8 @@ class Estimate:
     * ``range_m``: ``|xhat|`` (m).
     * ``excitation``: smallest eigenvalue of the time-average of ``Pi_y`` over the monitor's
       window, in [0, (n-1)/n]; 0 means the bearing did not move.
-    * ``cond_m``: 2-norm condition number of the observer matrix ``M``.
+    * ``cond_m``: 2-norm condition number of the observer matrix ``M`` (of the committed
+      state: an estimate ahead of it is a prediction that does not change it meaningfully).
     * ``status``: see :class:`Status`.
     * ``corrected``: False when the last step only predicted (no usable bearing).
     * ``bearing_age_s`` / ``velocity_age_s``: time since the latest sample of each stream.

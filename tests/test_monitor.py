@@ -17,10 +17,19 @@ TH = MonitorThresholds(
 )
 
 
+def _held(win: ExcitationWindow, t0: float, t1: float, y) -> None:
+    """Account a bearing ``y`` (or none) held over ``[t0, t1]``."""
+    if y is None:
+        win.add_interval(t0, t1, None, 0.0)
+    else:
+        y = np.asarray(y, dtype=float)
+        win.add_interval(t0, t1, (np.outer(y, y) * (t1 - t0)).ravel().tolist(), t1 - t0)
+
+
 def _feed(win: ExcitationWindow, ys, t0: float, dt: float) -> float:
     t = t0
     for y in ys:
-        win.add_interval(t, t + dt, y)
+        _held(win, t, t + dt, y)
         t += dt
     return t
 
@@ -63,14 +72,14 @@ def test_window_forgets_old_data_and_stays_bounded() -> None:
 
 def test_long_interval_spans_buckets() -> None:
     win = ExcitationWindow(2, 10.0, 10)
-    win.add_interval(0.0, 60.0, np.array([1.0, 0.0]))
+    _held(win, 0.0, 60.0, [1.0, 0.0])
     assert win.covered_s() == pytest.approx(10.0, abs=1.0)
     assert win.excitation() == pytest.approx(0.0, abs=1e-12)
 
 
 def test_correction_indicator_and_round_trip() -> None:
     win = ExcitationWindow(3, 10.0, 20)
-    win.add_interval(0.0, 5.0, np.array([0.0, 0.0, 1.0]))
+    _held(win, 0.0, 5.0, [0.0, 0.0, 1.0])
     win.add_correction(5.0, np.array([0.3, 0.4, 0.0]), np.array([0.0, 0.0, 0.01]))
     assert win.correction_rel(10.0) == pytest.approx((0.5 + 5.0 * 0.01) / 10.0)
     again = ExcitationWindow.from_dict(3, win.to_dict())
