@@ -1,0 +1,131 @@
+"""Reading MAVLink from any pymavlink connection string (live links, serial ports).
+
+Accepted: everything ``mavutil.mavlink_connection`` takes (``udpin:127.0.0.1:14550``,
+``udpout:HOST:PORT``, ``tcp:HOST:PORT``, ``tcpin:HOST:PORT``, a serial device), plus
+``DEVICE,BAUD`` for a serial device at a given baud rate (``/dev/ttyACM0,115200``). A path to an
+existing file is a tlog and goes through :class:`~mav_observer.mavlink.tlog.TlogReader`
+instead (see :func:`is_file_source`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from mav_observer.mavlink.dialect import connect
+
+log = logging.getLogger(__name__)
+
+URL_PREFIXES = ("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:", "serial:", "mcast:")
+
+
+def is_file_source(source: str) -> bool:
+    """True if ``source`` names a file to replay rather than a connection string."""
+    if source.startswith(URL_PREFIXES):
+        return False
+    return os.path.isfile(source) and not source.startswith("/dev/")
+
+
+def split_serial(source: str) -> tuple[str, dict[str, Any]]:
+    """``"/dev/ttyUSB0,57600"`` -> ``("/dev/ttyUSB0", {"baud": 57600})``; other strings as is."""
+    if "," in source and not source.startswith(URL_PREFIXES):
+        dev, baud = source.rsplit(",", 1)
+        if baud.isdigit():
+            return dev, {"baud": int(baud)}
+    return source, {}
+
+
+class ConnectionReader:
+    """Iterate ``(t_arrival_s, message)`` from a live connection.
+
+    Stops after ``duration_s`` (wall seconds, if given) or after ``idle_timeout_s`` without any
+    message (if given); otherwise runs until :meth:`close`. A link that fails (a TCP peer gone,
+    a serial port unplugged) is counted in :attr:`link_errors` and reopened after a back-off
+    (0.5 s doubling to 8 s). ``clock`` is the arrival clock (Unix seconds), injected for tests.
+    BAD_DATA from pymavlink (bad CRC, junk) is yielded like any message so it can be counted.
+    """
+
+    def __init__(
+        self,
+        source: str,
+        *,
+        duration_s: float | None = None,
+        idle_timeout_s: float | None = None,
+        clock: Callable[[], float] = time.time,
+        poll_s: float = 0.1,
+    ) -> None:
+        self.source = source
+        self.duration_s = duration_s
+        self.idle_timeout_s = idle_timeout_s
+        self.clock = clock
+        self.poll_s = poll_s
+        self.counts: Counter[str] = Counter()
+        self.link_errors = 0
+        self._conn: Any = None
+        self._closed = False
+
+    def open(self) -> None:
+        dev, kwargs = split_serial(self.source)
+        self._conn = connect(
+            dev, source_system=255, source_component=190, autoreconnect=True, **kwargs
+        )
+
+    def close(self) -> None:
+        self._closed = True
+        self._close_link()
+
+    def _close_link(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            with contextlib.suppress(AttributeError, OSError):  # a TCP link mid-reconnect
+                conn.close()
+
+    def _drop_link(self, exc: OSError) -> None:
+        self.link_errors += 1
+        if self.link_errors == 1 or self.link_errors % 100 == 0:
+            log.warning(
+                "MAVLink link %s failed (%d so far): %s", self.source, self.link_errors, exc
+            )
+        self._close_link()
+
+    def __iter__(self) -> Iterator[tuple[float, Any]]:
+        start = time.monotonic()
+        last_msg = start
+        backoff = 0.5
+        retry_at = start
+        try:
+            while not self._closed:
+                now = time.monotonic()
+                if self.duration_s is not None and now - start >= self.duration_s:
+                    return
+                if self.idle_timeout_s is not None and now - last_msg >= self.idle_timeout_s:
+                    return
+                if self._conn is None:
+                    if now < retry_at:
+                        time.sleep(min(self.poll_s, retry_at - now))
+                        continue
+                    try:
+                        self.open()
+                    except OSError as exc:
+                        self._drop_link(exc)
+                        retry_at, backoff = now + backoff, min(8.0, 2 * backoff)
+                        continue
+                try:
+                    msg = self._conn.recv_match(blocking=True, timeout=self.poll_s)
+                except OSError as exc:
+                    self._drop_link(exc)
+                    retry_at, backoff = time.monotonic() + backoff, min(8.0, 2 * backoff)
+                    continue
+                if msg is None:
+                    continue
+                backoff = 0.5
+                last_msg = time.monotonic()
+                self.counts[msg.get_type()] += 1
+                yield self.clock(), msg
+        finally:
+            self.close()

@@ -1,0 +1,153 @@
+"""The fast decoder equals pymavlink's, message for message (mav_observer/mavlink/fastdecode.py)."""
+
+import math
+from pathlib import Path
+
+import pytest
+from mavmsg import frame
+
+from mav_observer.mavlink.dialect import MSG_ID, codec
+from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
+from mav_observer.mavlink.tlog import TlogReader
+
+TLOGS = Path(__file__).resolve().parents[2] / "shared" / "tlogs"
+USED = [
+    "LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION", "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "MOUNT_STATUS", "MOUNT_ORIENTATION", "LANDING_TARGET", "CAMERA_TRACKING_IMAGE_STATUS",
+    "CAMERA_FOV_STATUS", "CAMERA_INFORMATION", "SYSTEM_TIME", "HOME_POSITION", "HEARTBEAT",
+]  # fmt: skip
+
+
+def same(a, b) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, list):
+        return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b, strict=True))
+    return a == b
+
+
+def _check(frames: list[bytes]) -> int:
+    fast, ref = FastDecoder({MSG_ID[n] for n in USED}), codec()
+    for fr in frames:
+        a, b = fast.decode(fr), ref.decode(bytearray(fr))
+        assert a.get_type() == b.get_type()
+        assert (a.get_srcSystem(), a.get_srcComponent()) == (
+            b.get_srcSystem(),
+            b.get_srcComponent(),
+        )
+        for name in b.get_fieldnames():
+            assert same(getattr(a, name), getattr(b, name)), (b.get_type(), name)
+    return len(frames)
+
+
+class _Raw(TlogReader):
+    """A reader that hands over raw frames instead of decoding them."""
+
+
+def _raw_frames(path: Path) -> list[bytes]:
+    import mmap
+
+    from mav_observer.mavlink.tlog import _frame_at
+
+    out = []
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        n, i = len(buf), 0
+        wanted = {MSG_ID[x] for x in USED}
+        ref = codec()
+        while i < n:
+            h = _frame_at(buf, i, n)
+            if h is None or i + 8 + h[2] > n:
+                i += 1
+                continue
+            fr = bytes(buf[i + 8 : i + 8 + h[2]])
+            if h[1] in wanted:
+                try:
+                    ref.decode(bytearray(fr))
+                    out.append(fr)
+                except Exception:
+                    pass
+            i += 8 + h[2]
+    return out
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "ardupilot_sitl_servo_mount_roi.tlog",
+        "gimbal_ardusub_bluerov_small.tlog",
+        "real_copter_phoenix_m2.tlog",
+    ],
+)
+def test_real_log_messages_decode_identically(name: str) -> None:
+    assert _check(_raw_frames(TLOGS / name)) > 1000
+
+
+def test_arrays_extensions_truncation_and_mavlink1() -> None:
+    nan = float("nan")
+    frames = [
+        frame(
+            "GIMBAL_DEVICE_ATTITUDE_STATUS",
+            0,
+            0,
+            5,
+            0x2C,
+            [1.0, 0.0, 0.0, 0.0],
+            nan,
+            nan,
+            nan,
+            0,
+            nan,
+            nan,
+            1,
+        ),
+        frame(
+            "LANDING_TARGET",
+            123,
+            2,
+            12,
+            0.1,
+            -0.2,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            [1.0, 0.0, 0.0, 0.0],
+            0,
+            0,
+        ),
+        frame("LOCAL_POSITION_NED", 10, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),  # trailing zeros trimmed
+        frame("ATTITUDE", 10, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0, v1=True),
+        frame(
+            "CAMERA_INFORMATION",
+            1,
+            [*b"vendor", *[0] * 26],
+            [*b"model", *[0] * 27],
+            0,
+            4.0,
+            6.4,
+            4.8,
+            640,
+            480,
+            0,
+            0,
+            0,
+            b"",
+            0,
+            0,
+        ),
+    ]
+    assert _check(frames) == 5
+
+
+def test_bad_crc_and_bad_length_are_refused() -> None:
+    fd = FastDecoder({MSG_ID["ATTITUDE"]})
+    fr = bytearray(frame("ATTITUDE", 10, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0))
+    fr[12] ^= 1
+    with pytest.raises(DecodeError) as err:
+        fd.decode(bytes(fr))
+    assert err.value.reason == "bad_crc"
+    with pytest.raises(DecodeError) as err:
+        fd.decode(bytes(fr[:-3]))
+    assert err.value.reason == "invalid_frame"

@@ -1,0 +1,39 @@
+"""The clock mapping of mav_observer/mavlink/timebase.py."""
+
+import numpy as np
+import pytest
+
+from mav_observer.mavlink.timebase import ClockMap
+
+
+def test_offset_is_the_latency_free_minimum() -> None:
+    rng = np.random.default_rng(4)
+    c = ClockMap()
+    for i in range(500):
+        boot = 100.0 + 0.05 * i
+        arrival = 1_767_000_000.0 + boot + 0.01 + rng.exponential(0.02)  # latency >= 10 ms
+        assert c.update(boot, arrival) is None
+    assert c.offset_s == pytest.approx(1_767_000_000.0 + 0.01, abs=2e-3)
+    assert c.to_boot(c.to_arrival(123.0)) == pytest.approx(123.0)
+
+
+def test_offset_follows_drift() -> None:
+    c = ClockMap(drift_ppm=200.0)
+    for i in range(2000):
+        boot = 0.1 * i
+        c.update(boot, 1000.0 + boot * (1 + 100e-6))  # arrival clock 100 ppm fast
+    assert c.offset_s == pytest.approx(1000.0 + 199.9 * 100e-6, abs=1e-3)
+
+
+def test_reboot_and_reordering() -> None:
+    c = ClockMap()
+    c.update(500.0, 1500.0)
+    assert c.update(499.5, 1500.1) == "out_of_order"
+    assert c.last_boot_s == 500.0  # refused: nothing changed
+    assert c.update(3.0, 1501.0) == "reboot"
+    assert c.offset_s == pytest.approx(1498.0)
+
+
+def test_no_offset_yet_is_an_error() -> None:
+    with pytest.raises(ValueError, match="not known yet"):
+        ClockMap().to_boot(1.0)
