@@ -1,0 +1,578 @@
+"""Route MAVLink messages to one observer per vehicle (sysid) and target.
+
+:class:`Tracker` takes decoded messages with their arrival (or tlog) time, keeps for each
+vehicle its clocks (:mod:`~mav_observer.mavlink.timebase`), a short attitude history, its
+latest position and velocity and its cameras' fields of view, turns bearing messages into
+:class:`~mav_observer.samples.BearingSample` through the frame chains of
+:mod:`~mav_observer.mavlink.adapters`, and returns an
+:class:`~mav_observer.records.EstimateRecord` for each bearing the observers accept. A message
+that cannot be used is counted by reason and skipped; nothing already received is lost.
+
+Targets and the messages that feed them (``sources``):
+
+==================  =============================================  ====================
+source              message                                        target name
+==================  =============================================  ====================
+``gimbal``          GIMBAL_DEVICE_ATTITUDE_STATUS (boresight)      ``gimbal`` or ``gimbalN``
+``camera``          CAMERA_TRACKING_IMAGE_STATUS + gimbal or mount ``camera``
+``mount``           MOUNT_ORIENTATION                              ``mount``
+``mount_status``    MOUNT_STATUS (ArduPilot)                       ``mount_status``
+``landing_target``  LANDING_TARGET                                 ``landing_target_<target_num>``
+``home``            synthetic: HOME_POSITION - LOCAL_POSITION_NED  ``home`` (validation only)
+==================  =============================================  ====================
+
+``auto`` enables every source but ``home``: each one the stream carries gets its observer.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
+from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
+from mav_observer.mavlink import adapters
+from mav_observer.mavlink.adapters import Skip
+from mav_observer.mavlink.dialect import MSG_ID
+from mav_observer.mavlink.timebase import ClockMap
+from mav_observer.observer import BiasObserver, ObserverConfig
+from mav_observer.records import EstimateRecord
+
+log = logging.getLogger(__name__)
+
+SOURCES = ("gimbal", "camera", "mount", "mount_status", "landing_target", "home")
+AUTO_SOURCES = frozenset(SOURCES) - {"home"}
+MAV_AUTOPILOT_INVALID = 8
+POSITION_MAX_AGE_S = 1.0
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """How messages become samples (``docs/frames.md``).
+
+    * ``sources``: ``("auto",)`` or a subset of :data:`SOURCES`.
+    * ``gimbal_angles``: ``"flags"`` (trust GIMBAL_DEVICE_FLAGS) or ``"body"`` (the quaternion
+      is relative to the vehicle body: ArduPilot servo mounts, MNT1_TYPE 1).
+    * ``mount_status_yaw``: frame of MOUNT_STATUS yaw, ``"vehicle"`` (ArduPilot) or ``"earth"``.
+    * ``landing_target_orientation``, ``landing_target_yaw_align_deg``: the landing-target
+      camera on the body, as ArduPilot's PLND_ORIENT (``"down"`` or ``"forward"``) and
+      PLND_YAW_ALIGN.
+    * ``camera_hfov_deg``, ``camera_vfov_deg``: field of view when the stream gives none.
+    * ``max_attitude_age_s``: a vehicle attitude further than this from a bearing's time is
+      not used (the bearing is skipped as ``no_attitude``).
+    * ``max_camera_attitude_age_s``: same for pairing a tracked point with the gimbal or mount
+      attitude.
+    * ``sysids``: only these vehicles (``None``: all).
+    * ``observer``: settings of every observer (n must be 3).
+    """
+
+    sources: tuple[str, ...] = ("auto",)
+    gimbal_angles: str = "flags"
+    mount_status_yaw: str = "vehicle"
+    landing_target_orientation: str = "down"
+    landing_target_yaw_align_deg: float = 0.0
+    camera_hfov_deg: float | None = None
+    camera_vfov_deg: float | None = None
+    max_attitude_age_s: float = 0.5
+    max_camera_attitude_age_s: float = 0.5
+    sysids: tuple[int, ...] | None = None
+    observer: ObserverConfig = field(default_factory=ObserverConfig)
+
+    def __post_init__(self) -> None:
+        srcs = tuple(self.sources)
+        bad = [s for s in srcs if s != "auto" and s not in SOURCES]
+        if bad or not srcs:
+            raise ConfigError(f"sources must be 'auto' or among {SOURCES}, got {srcs!r}")
+        object.__setattr__(self, "sources", srcs)
+        if self.gimbal_angles not in ("flags", "body"):
+            raise ConfigError(
+                f"gimbal_angles must be 'flags' or 'body', got {self.gimbal_angles!r}"
+            )
+        if self.mount_status_yaw not in ("vehicle", "earth"):
+            raise ConfigError(
+                f"mount_status_yaw must be 'vehicle' or 'earth', got {self.mount_status_yaw!r}"
+            )
+        if self.landing_target_orientation not in ("down", "forward"):
+            raise ConfigError(
+                "landing_target_orientation must be 'down' or 'forward', "
+                f"got {self.landing_target_orientation!r}"
+            )
+        for name in ("camera_hfov_deg", "camera_vfov_deg"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and 0.0 < v < 180.0):
+                raise ConfigError(f"{name} must be in (0, 180) degrees, got {v!r}")
+        for name in ("max_attitude_age_s", "max_camera_attitude_age_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
+                raise ConfigError(f"{name} must be a finite number > 0, got {v!r}")
+        if self.observer.n != 3:
+            raise ConfigError(f"observer n must be 3 for NED, got {self.observer.n}")
+
+    def enabled(self) -> frozenset[str]:
+        if "auto" in self.sources:
+            return AUTO_SOURCES | (frozenset(self.sources) - {"auto"})
+        return frozenset(self.sources)
+
+    def wanted_message_ids(self) -> frozenset[int]:
+        """Message ids the tracker uses with these sources (for selective decoding)."""
+        names = {"LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION", "HEARTBEAT"}
+        en = self.enabled()
+        if en & {"gimbal", "camera"}:
+            names.add("GIMBAL_DEVICE_ATTITUDE_STATUS")
+        if "camera" in en:
+            names |= {"CAMERA_TRACKING_IMAGE_STATUS", "CAMERA_FOV_STATUS", "CAMERA_INFORMATION"}
+        if en & {"mount", "camera"}:
+            names.add("MOUNT_ORIENTATION")
+        if "mount_status" in en:
+            names.add("MOUNT_STATUS")
+        if "landing_target" in en:
+            names.add("LANDING_TARGET")
+        if "home" in en:
+            names.add("HOME_POSITION")
+        return frozenset(MSG_ID[n] for n in names)
+
+
+class AttitudeHistory:
+    """Recent vehicle attitudes ``(t_s, roll, pitch, yaw)`` on the autopilot clock, bounded."""
+
+    def __init__(self, maxlen: int = 128) -> None:
+        self._h: deque[tuple[float, float, float, float]] = deque(maxlen=maxlen)
+
+    def add(self, t: float, roll: float, pitch: float, yaw: float) -> None:
+        if self._h and t < self._h[-1][0]:
+            return  # older than what we have: keep the history ordered
+        if self._h and t == self._h[-1][0]:
+            self._h.pop()
+        self._h.append((t, roll, pitch, yaw))
+
+    def at(self, t: float, max_age_s: float) -> tuple[float, float, float] | None:
+        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped), or
+        the nearest one within ``max_age_s``; ``None`` if there is none."""
+        h = self._h
+        if not h:
+            return None
+        last = h[-1]
+        if t >= last[0]:
+            return last[1:] if t - last[0] <= max_age_s else None
+        for i in range(len(h) - 2, -1, -1):
+            a = h[i]
+            if a[0] <= t:
+                b = h[i + 1]
+                if b[0] - a[0] > 2 * max_age_s:
+                    near = a if t - a[0] <= b[0] - t else b
+                    return near[1:] if abs(near[0] - t) <= max_age_s else None
+                f = (t - a[0]) / (b[0] - a[0])
+                dyaw = math.remainder(b[3] - a[3], 2 * math.pi)
+                return (
+                    a[1] + f * (b[1] - a[1]),
+                    a[2] + f * (b[2] - a[2]),
+                    a[3] + f * dyaw,
+                )
+        first = h[0]
+        return first[1:] if first[0] - t <= max_age_s else None
+
+
+@dataclass
+class _Vehicle:
+    sysid: int
+    clocks: dict[Any, ClockMap] = field(default_factory=dict)
+    autopilot_compid: int | None = None
+    attitude: AttitudeHistory = field(default_factory=AttitudeHistory)
+    position: tuple[float, Vec3, Vec3] | None = None  # t, pos, vel (NED)
+    velocity: tuple[float, list[float]] | None = None  # latest (t, v) on the autopilot clock
+    observers: dict[str, tuple[BiasObserver, str]] = field(default_factory=dict)
+    #: latest gimbal or mount attitude: ``(t, R_ned_cam)``, or ``(t, (q, flags, yaw,
+    #: delta_yaw))`` from a gimbal, turned into the matrix only when a tracked point needs it
+    camera_attitude: tuple[float, Any] | None = None
+    fov: dict[int, tuple[float, float]] = field(default_factory=dict)
+    home: Vec3 | None = None
+
+
+class Tracker:
+    """Turns ``(t_arrival_s, message)`` pairs into estimate records; see the module docstring.
+
+    ``t_arrival_s`` is the tlog timestamp on replay, the receive time live (Unix seconds).
+    """
+
+    def __init__(self, config: TrackerConfig | None = None) -> None:
+        self.config = config if config is not None else TrackerConfig()
+        self.enabled = self.config.enabled()
+        self._sensor = adapters.landing_target_sensor(
+            self.config.landing_target_orientation, self.config.landing_target_yaw_align_deg
+        )
+        self.vehicles: dict[int, _Vehicle] = {}
+        self.received: Counter[str] = Counter()
+        self.used: Counter[str] = Counter()
+        self.skipped: Counter[str] = Counter()
+        self.events: Counter[str] = Counter()
+        self._warned: Counter[str] = Counter()  # log rate limiting
+        self._handlers: dict[str, Callable[[_Vehicle, float, Any, list[EstimateRecord]], None]] = {
+            "LOCAL_POSITION_NED": self._on_local_position,
+            "ATTITUDE": self._on_attitude,
+            "ATTITUDE_QUATERNION": self._on_attitude_quaternion,
+            "GIMBAL_DEVICE_ATTITUDE_STATUS": self._on_gimbal,
+            "CAMERA_TRACKING_IMAGE_STATUS": self._on_camera_tracking,
+            "CAMERA_FOV_STATUS": self._on_camera_fov,
+            "CAMERA_INFORMATION": self._on_camera_information,
+            "MOUNT_ORIENTATION": self._on_mount_orientation,
+            "MOUNT_STATUS": self._on_mount_status,
+            "LANDING_TARGET": self._on_landing_target,
+            "HOME_POSITION": self._on_home,
+            "SYSTEM_TIME": self._on_system_time,
+            "HEARTBEAT": self._on_heartbeat,
+        }
+
+    # -- entry point ----------------------------------------------------------------
+    def handle(self, t_arrival_s: float, msg: Any) -> list[EstimateRecord]:
+        """Process one decoded message; returns the estimates it produced (often none)."""
+        mtype = msg.get_type()
+        self.received[mtype] += 1
+        handler = self._handlers.get(mtype)
+        if handler is None:
+            if mtype == "BAD_DATA":
+                self.skipped["bad_data"] += 1
+            return []
+        sysid = msg.get_srcSystem()
+        if self.config.sysids is not None and sysid not in self.config.sysids:
+            self.skipped["foreign_sysid"] += 1
+            return []
+        veh = self.vehicles.get(sysid)
+        if veh is None:
+            veh = self.vehicles[sysid] = _Vehicle(sysid)
+        out: list[EstimateRecord] = []
+        try:
+            handler(veh, t_arrival_s, msg, out)
+        except Skip as s:
+            self.skipped[s.reason] += 1
+        except MavObserverError as exc:
+            self.skipped["invalid"] += 1
+            log.debug("vehicle %d: %s refused: %s", sysid, mtype, exc)
+        except (AttributeError, TypeError, ValueError, ArithmeticError) as exc:
+            # a message missing a field or carrying nonsense the checks did not foresee
+            self.skipped["malformed"] += 1
+            key = f"malformed {mtype} {type(exc).__name__}"
+            self._warned[key] += 1
+            if self._warned[key] in (1, 10, 100) or self._warned[key] % 1000 == 0:
+                log.warning(
+                    "vehicle %d: malformed %s skipped (%d so far): %r",
+                    sysid,
+                    mtype,
+                    self._warned[key],
+                    exc,
+                )
+        else:
+            self.used[mtype] += 1
+        return out
+
+    # -- time -------------------------------------------------------------------------
+    def _timed(self, veh: _Vehicle, key: Any, boot_s: float, arrival: float) -> float:
+        """Boot time of a timed message from clock ``key`` moved onto the autopilot clock."""
+        if not math.isfinite(boot_s):
+            raise Skip("non_finite", "time")
+        clock = veh.clocks.get(key)
+        if clock is None:
+            clock = veh.clocks[key] = ClockMap()
+        event = clock.update(boot_s, arrival)
+        if event == "out_of_order":
+            raise Skip("out_of_order", f"clock {key} went back")
+        is_autopilot = key == veh.autopilot_compid
+        if event == "reboot":
+            if is_autopilot:
+                self._reboot(veh)
+                veh.clocks[key] = clock  # keep the restarted mapping
+            else:
+                self.events[f"clock_restart_{key}"] += 1
+        if is_autopilot:
+            return boot_s
+        ap = veh.clocks.get(veh.autopilot_compid)
+        if ap is None or ap.offset_s is None:
+            raise Skip("no_time_base", "no autopilot clock yet")
+        return ap.to_boot(clock.to_arrival(boot_s))
+
+    def _untimed(self, veh: _Vehicle, arrival: float) -> float:
+        """A message with no time field: its arrival time on the autopilot clock."""
+        ap = veh.clocks.get(veh.autopilot_compid)
+        if ap is None or ap.offset_s is None:
+            raise Skip("no_time_base", "no autopilot clock yet")
+        return ap.to_boot(arrival)
+
+    def _claim_autopilot(self, veh: _Vehicle, compid: int) -> None:
+        if veh.autopilot_compid is None:
+            veh.autopilot_compid = compid
+
+    def _reboot(self, veh: _Vehicle) -> None:
+        log.warning(
+            "vehicle %d: autopilot clock went back: reboot, resetting its %d observer(s)",
+            veh.sysid,
+            len(veh.observers),
+        )
+        self.events["autopilot_reboot"] += 1
+        keep = veh.autopilot_compid
+        fresh = _Vehicle(veh.sysid, autopilot_compid=keep)
+        veh.__dict__.update(fresh.__dict__)
+
+    # -- vehicle state ----------------------------------------------------------------
+    def _on_heartbeat(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        if msg.autopilot != MAV_AUTOPILOT_INVALID:
+            self._claim_autopilot(veh, msg.get_srcComponent())
+
+    def _on_system_time(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        comp = msg.get_srcComponent()
+        if comp == veh.autopilot_compid:
+            self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+
+    def _on_local_position(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        comp = msg.get_srcComponent()
+        self._claim_autopilot(veh, comp)
+        pos = (msg.x, msg.y, msg.z)
+        vel = (msg.vx, msg.vy, msg.vz)
+        if not all(math.isfinite(v) for v in (*pos, *vel)):
+            raise Skip("non_finite", "LOCAL_POSITION_NED")
+        tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        veh.position = (tb, pos, vel)
+        v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)
+        veh.velocity = (tb, v)
+        for obs, _ in veh.observers.values():
+            try:
+                obs._update_velocity_trusted(tb, v)
+            except InvalidSampleError as exc:
+                self.skipped["refused_velocity"] += 1
+                log.debug("vehicle %d: velocity refused: %s", veh.sysid, exc)
+        if "home" in self.enabled and veh.home is not None:
+            h = veh.home
+            self._bearing(
+                veh,
+                "home",
+                "HOME_POSITION",
+                tb,
+                t,
+                (h[0] - pos[0], h[1] - pos[1], h[2] - pos[2]),
+                out,
+            )
+
+    def _on_attitude(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        comp = msg.get_srcComponent()
+        self._claim_autopilot(veh, comp)
+        adapters.check_attitude(msg.roll, msg.pitch, msg.yaw)
+        tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        veh.attitude.add(tb, msg.roll, msg.pitch, msg.yaw)
+
+    def _on_attitude_quaternion(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        comp = msg.get_srcComponent()
+        self._claim_autopilot(veh, comp)
+        q = adapters.check_quaternion((msg.q1, msg.q2, msg.q3, msg.q4))
+        tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        veh.attitude.add(tb, *euler_from_dcm(quat_to_dcm(q)))
+
+    def _vehicle_attitude(self, veh: _Vehicle, tb: float) -> tuple[float, float, float] | None:
+        return veh.attitude.at(tb, self.config.max_attitude_age_s)
+
+    def _on_home(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        home = (msg.x, msg.y, msg.z)
+        if not all(math.isfinite(v) for v in home):
+            raise Skip("non_finite", "HOME_POSITION")
+        veh.home = home
+
+    # -- bearings ---------------------------------------------------------------------
+    def _on_gimbal(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
+        att = self._vehicle_attitude(veh, tb)
+        q = tuple(msg.q)
+        delta_yaw = getattr(msg, "delta_yaw", math.nan)
+        yaw = None if att is None else att[2]
+        if self.config.gimbal_angles == "body":
+            r_cam = adapters.gimbal_camera_attitude(
+                q,
+                msg.flags,
+                msg.failure_flags,
+                vehicle_yaw=yaw,
+                vehicle_dcm=None if att is None else euler_to_dcm(*att),
+                angles="body",
+            )
+            direction = adapters.boresight(r_cam)
+            veh.camera_attitude = (tb, r_cam)
+        else:
+            direction = adapters.gimbal_boresight(
+                q, msg.flags, msg.failure_flags, vehicle_yaw=yaw, delta_yaw=delta_yaw
+            )
+            if "camera" in self.enabled:  # the full attitude is built only if a point needs it
+                veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
+        dev = getattr(msg, "gimbal_device_id", 0)
+        target = "gimbal" if dev <= 1 else f"gimbal{dev}"
+        if "gimbal" in self.enabled:
+            self._bearing(veh, target, "GIMBAL_DEVICE_ATTITUDE_STATUS", tb, t, direction, out)
+
+    def _on_mount_orientation(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
+        att = self._vehicle_attitude(veh, tb)
+        yaw_abs = getattr(msg, "yaw_absolute", math.nan)
+        direction = adapters.mount_orientation_direction(
+            msg.pitch, msg.yaw, yaw_abs, None if att is None else att[2]
+        )
+        roll = math.radians(msg.roll) if math.isfinite(msg.roll) else 0.0
+        yaw_e = math.atan2(direction[1], direction[0])
+        veh.camera_attitude = (tb, euler_to_dcm(roll, math.radians(msg.pitch), yaw_e))
+        if "mount" in self.enabled:
+            self._bearing(veh, "mount", "MOUNT_ORIENTATION", tb, t, direction, out)
+
+    def _on_mount_status(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        tb = self._untimed(veh, t)
+        att = self._vehicle_attitude(veh, tb)
+        direction = adapters.mount_status_direction(
+            msg.pointing_a,
+            msg.pointing_c,
+            None if att is None else att[2],
+            yaw_frame=self.config.mount_status_yaw,
+        )
+        self._bearing(veh, "mount_status", "MOUNT_STATUS", tb, t, direction, out)
+
+    def _on_camera_fov(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
+        if not (
+            math.isfinite(msg.hfov) and math.isfinite(msg.vfov) and msg.hfov > 0 and msg.vfov > 0
+        ):
+            raise Skip("no_fov", "CAMERA_FOV_STATUS without a field of view")
+        veh.fov[msg.get_srcComponent()] = (math.radians(msg.hfov), math.radians(msg.vfov))
+
+    def _on_camera_information(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        fov = adapters.fov_from_camera_information(
+            msg.focal_length, msg.sensor_size_h, msg.sensor_size_v
+        )
+        if fov is None:
+            raise Skip("no_fov", "CAMERA_INFORMATION without focal length and sensor size")
+        veh.fov.setdefault(msg.get_srcComponent(), fov)
+
+    def _fov(self, veh: _Vehicle, compid: int) -> tuple[float, float]:
+        fov = veh.fov.get(compid)
+        if fov is None and veh.fov:
+            fov = next(iter(veh.fov.values()))
+        if fov is None and self.config.camera_hfov_deg and self.config.camera_vfov_deg:
+            fov = (
+                math.radians(self.config.camera_hfov_deg),
+                math.radians(self.config.camera_vfov_deg),
+            )
+        if fov is None:
+            raise Skip("no_fov", "no field of view from the stream or the configuration")
+        return fov
+
+    def _on_camera_tracking(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        adapters.tracking_status_usable(msg.tracking_status)
+        tb = self._untimed(veh, t)
+        hfov, vfov = self._fov(veh, msg.get_srcComponent())
+        ray = adapters.tracking_ray(msg.point_x, msg.point_y, hfov, vfov)
+        cam = veh.camera_attitude
+        if cam is None or abs(cam[0] - tb) > self.config.max_camera_attitude_age_s:
+            raise Skip("no_camera_attitude", "no gimbal or mount attitude near the tracked point")
+        r_cam = cam[1]
+        if len(r_cam) == 4:  # a gimbal's (q, flags, yaw, delta_yaw)
+            q, flags, yaw, delta_yaw = r_cam
+            r_cam = adapters.gimbal_camera_attitude(
+                q, flags, 0, vehicle_yaw=yaw, delta_yaw=delta_yaw
+            )
+        self._bearing(
+            veh, "camera", "CAMERA_TRACKING_IMAGE_STATUS", tb, t, mat_vec(r_cam, ray), out
+        )
+
+    def _on_landing_target(
+        self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        comp = msg.get_srcComponent()
+        if adapters.time_usec_kind(msg.time_usec) == "unix":
+            tb = self._untimed(veh, msg.time_usec * 1e-6)
+        else:
+            tb = self._timed(veh, ("landing_target", comp), msg.time_usec * 1e-6, t)
+        att = self._vehicle_attitude(veh, tb)
+        pos = None
+        if veh.position is not None and abs(veh.position[0] - tb) <= POSITION_MAX_AGE_S:
+            pos = veh.position[1]
+        los = adapters.landing_target_direction(
+            frame=msg.frame,
+            angle_x=msg.angle_x,
+            angle_y=msg.angle_y,
+            position_valid=getattr(msg, "position_valid", 0),
+            x=getattr(msg, "x", 0.0),
+            y=getattr(msg, "y", 0.0),
+            z=getattr(msg, "z", 0.0),
+            vehicle_dcm=None if att is None else euler_to_dcm(*att),
+            vehicle_yaw=None if att is None else att[2],
+            vehicle_pos_ned=pos,
+            sensor=self._sensor,
+        )
+        self._bearing(veh, f"landing_target_{msg.target_num}", "LANDING_TARGET", tb, t, los, out)
+
+    # -- the observers ----------------------------------------------------------------
+    def _bearing(
+        self,
+        veh: _Vehicle,
+        target: str,
+        source: str,
+        tb: float,
+        t_arrival: float,
+        direction: Vec3,
+        out: list[EstimateRecord],
+    ) -> None:
+        n2 = direction[0] ** 2 + direction[1] ** 2 + direction[2] ** 2
+        if not math.isfinite(tb) or not math.isfinite(n2):
+            raise Skip("non_finite", f"bearing {direction} at {tb}")
+        if n2 <= 0.0:
+            raise Skip("zero_length", f"bearing {direction}")
+        inv = 1.0 / math.sqrt(n2)
+        y = [direction[0] * inv, direction[1] * inv, direction[2] * inv]
+        entry = veh.observers.get(target)
+        if entry is None:
+            obs = BiasObserver(self.config.observer)
+            if veh.velocity is not None:
+                obs._update_velocity_trusted(*veh.velocity)
+            veh.observers[target] = entry = (obs, source)
+            self.events["targets"] += 1
+            log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
+        try:
+            est = entry[0]._update_bearing_trusted(tb, y)
+        except InvalidSampleError as exc:
+            raise Skip("refused_bearing", str(exc)) from exc
+        if not entry[0].started:  # no velocity yet: the bearing waits, nothing to report
+            self.events["estimates_withheld_no_velocity"] += 1
+            return
+        vpos = None
+        if veh.position is not None:
+            tp, p, v = veh.position
+            dt = tb - tp
+            if abs(dt) <= POSITION_MAX_AGE_S:
+                vpos = (p[0] + v[0] * dt, p[1] + v[1] * dt, p[2] + v[2] * dt)
+        out.append(EstimateRecord(t_arrival, tb, veh.sysid, target, source, est, vpos))
+
+    def redundant_message_ids(self) -> frozenset[int]:
+        """Ids that need no decoding any more: ATTITUDE_QUATERNION once ATTITUDE is arriving
+        (both give the vehicle attitude)."""
+        if self.used.get("ATTITUDE"):
+            return frozenset({MSG_ID["ATTITUDE_QUATERNION"]})
+        return frozenset()
+
+    # -- read-out ---------------------------------------------------------------------
+    def targets(self) -> dict[tuple[int, str], str]:
+        """``(sysid, target) -> source`` of every observer created."""
+        return {
+            (s, name): src
+            for s, veh in self.vehicles.items()
+            for name, (_, src) in veh.observers.items()
+        }
+
+    def observer(self, sysid: int, target: str) -> BiasObserver | None:
+        veh = self.vehicles.get(sysid)
+        entry = None if veh is None else veh.observers.get(target)
+        return None if entry is None else entry[0]

@@ -1,0 +1,58 @@
+"""The estimate record (schema 1, docs/schema.md)."""
+
+import json
+import math
+
+import numpy as np
+
+from mav_observer.records import CSV_COLUMNS, SCHEMA_VERSION, EstimateRecord
+from mav_observer.samples import Estimate, Status
+
+REQUIRED = {
+    "schema", "t_unix_s", "sysid", "target", "rel_pos_ned_m", "range_m", "bias_ned_mps",
+    "target_pos_ned_m", "pe", "cond_m", "status",
+}  # fmt: skip
+
+
+def _est(cond: float = 3.0) -> Estimate:
+    return Estimate(
+        12.5, np.array([3.0, 4.0, 12.0]), np.array([0.1, -0.2, 0.0]), 13.0, 0.25, cond,
+        Status.NOT_OBSERVABLE, True, 0.0, 0.05, 0.01,
+    )  # fmt: skip
+
+
+def test_record_fields_and_meaning() -> None:
+    r = EstimateRecord(
+        1_767_225_600.5,
+        12.5,
+        7,
+        "gimbal",
+        "GIMBAL_DEVICE_ATTITUDE_STATUS",
+        _est(),
+        (10.0, 20.0, -15.0),
+    )
+    d = r.to_dict()
+    assert d.keys() >= REQUIRED
+    assert d["schema"] == SCHEMA_VERSION == 1
+    assert d["rel_pos_ned_m"] == [3.0, 4.0, 12.0]
+    assert d["target_pos_ned_m"] == [13.0, 24.0, -3.0]  # vehicle + (target - vehicle)
+    assert d["status"] == "not observable"
+    assert json.loads(r.to_json()) == d
+
+
+def test_no_position_and_non_finite_values_give_null() -> None:
+    r = EstimateRecord(1.0, 2.0, 1, "camera", "CAMERA_TRACKING_IMAGE_STATUS", _est(math.inf), None)
+    d = json.loads(r.to_json())
+    assert d["target_pos_ned_m"] is None and d["vehicle_pos_ned_m"] is None
+    assert d["cond_m"] is None
+    assert d == {**r.to_dict(), "cond_m": None}
+
+
+def test_csv_row_matches_the_columns() -> None:
+    r = EstimateRecord(1.0, 2.0, 1, "mount", "MOUNT_ORIENTATION", _est(), (1.0, 1.0, 1.0))
+    row = r.csv_row()
+    assert len(row) == len(CSV_COLUMNS)
+    named = dict(zip(CSV_COLUMNS, row, strict=True))
+    assert (
+        named["rel_pos_d_m"] == 12.0 and named["target_pos_e_m"] == 5.0 and named["corrected"] == 1
+    )

@@ -1,0 +1,182 @@
+"""Routing MAVLink to observers (mav_observer/mavlink/tracker.py)."""
+
+import math
+
+import pytest
+from mavmsg import T0_UNIX, message
+
+from mav_observer.errors import ConfigError
+from mav_observer.mavlink.tracker import AttitudeHistory, Tracker, TrackerConfig
+from mav_observer.observer import ObserverConfig
+
+NAN = float("nan")
+FLAGS_VEHICLE = 0x2C
+Q_DOWN45 = (math.cos(math.radians(-22.5)), 0.0, math.sin(math.radians(-22.5)), 0.0)  # pitch -45
+
+
+def lpn(ms, pos=(0.0, 0.0, -10.0), vel=(1.0, 0.0, 0.0), sysid=1):
+    return message("LOCAL_POSITION_NED", ms, *pos, *vel, sysid=sysid)
+
+
+def att(ms, yaw=0.0, roll=0.0, pitch=0.0, sysid=1):
+    return message("ATTITUDE", ms, roll, pitch, yaw, 0.0, 0.0, 0.0, sysid=sysid)
+
+
+def gimbal(ms, q=Q_DOWN45, flags=FLAGS_VEHICLE, failure=0, sysid=1, compid=1, dev=1):
+    return message(
+        "GIMBAL_DEVICE_ATTITUDE_STATUS", 0, 0, ms, flags, list(q),
+        NAN, NAN, NAN, failure, NAN, NAN, dev, sysid=sysid, compid=compid,
+    )  # fmt: skip
+
+
+def feed(tr: Tracker, msgs, t0=T0_UNIX, boot0_ms=100_000):
+    out = []
+    for m in msgs:
+        ms = getattr(m, "time_boot_ms", None)
+        t = t0 + ((ms - boot0_ms) / 1000.0 if ms is not None else 0.0) + 0.01
+        out += tr.handle(t, m)
+    return out
+
+
+def flight(n=50, sysid=1, yaw=0.0, boot0=100_000):
+    """A vehicle flying north at 1 m/s, gimbal 45 deg down: attitude, position, gimbal, 10 Hz."""
+    msgs = []
+    for i in range(n):
+        ms = boot0 + 100 * i
+        msgs += [
+            att(ms, yaw, sysid=sysid),
+            lpn(ms, (0.1 * i, 0.0, -10.0), sysid=sysid),
+            gimbal(ms + 5, sysid=sysid),
+        ]
+    return msgs
+
+
+def test_one_vehicle_one_gimbal_estimates_with_context() -> None:
+    tr = Tracker()
+    recs = feed(tr, flight())
+    assert len(recs) == 50  # every bearing (a velocity sample precedes the first one)
+    r = recs[-1]
+    assert (r.sysid, r.target, r.source) == (1, "gimbal", "GIMBAL_DEVICE_ATTITUDE_STATUS")
+    assert r.t_boot_s == pytest.approx(100.0 + 4.905)  # the autopilot clock
+    assert r.t_unix_s == pytest.approx(T0_UNIX + 4.905 + 0.01)  # arrival (tlog) time
+    assert r.vehicle_pos_ned_m == pytest.approx((4.9 + 0.005, 0.0, -10.0))  # extrapolated 5 ms
+    assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+    assert tr.skipped == {}
+
+
+def test_bearing_follows_the_vehicle_yaw() -> None:
+    tr = Tracker(TrackerConfig(observer=ObserverConfig(initial_range_m=20.0)))
+    recs = feed(tr, flight(yaw=math.pi / 2))
+    y = recs[-1].estimate.x_m
+    # gimbal yaw 0 relative to a vehicle heading east: the estimate lies east and below
+    assert y[1] > 0 and y[2] > 0 and abs(y[0]) < 0.5 * y[1]
+
+
+def test_two_vehicles_and_landing_targets_get_their_own_observers() -> None:
+    tr = Tracker()
+    msgs = flight(sysid=1) + flight(sysid=2)
+    for i in range(20):
+        ms = 100_000 + 100 * i + 7
+        for num in (0, 3):
+            msgs.append(
+                message(
+                    "LANDING_TARGET",
+                    ms * 1000,
+                    num,
+                    12,
+                    0.1 * num,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    [1.0, 0.0, 0.0, 0.0],
+                    0,
+                    0,
+                )
+            )
+    msgs.sort(key=lambda m: getattr(m, "time_boot_ms", getattr(m, "time_usec", 0) // 1000))
+    feed(tr, msgs)
+    assert set(tr.targets()) == {
+        (1, "gimbal"),
+        (2, "gimbal"),
+        (1, "landing_target_0"),
+        (1, "landing_target_3"),
+    }
+
+
+def test_autopilot_reboot_resets_the_vehicle_and_says_so() -> None:
+    tr = Tracker()
+    feed(tr, flight(n=30))
+    before = tr.observer(1, "gimbal")
+    feed(tr, flight(n=30, boot0=5_000), boot0_ms=5_000, t0=T0_UNIX + 60)  # booted again
+    assert tr.events["autopilot_reboot"] == 1
+    assert tr.observer(1, "gimbal") is not before
+    assert tr.observer(1, "gimbal").counts["bearing"] == 30
+
+
+def test_bad_messages_are_counted_and_the_stream_goes_on() -> None:
+    tr = Tracker()
+    good = flight(n=40)
+    bad = [  # between the good samples of 101.0 s and 101.1 s
+        gimbal(101_010, q=(0.0, 0.0, 0.0, 0.0)),
+        gimbal(101_020, failure=32),
+        gimbal(101_030, flags=FLAGS_VEHICLE | 1),
+        message("LOCAL_POSITION_NED", 101_040, 0.0, 0.0, 0.0, NAN, 0.0, 0.0),
+        message("ATTITUDE", 101_050, 0.0, 3.0, 0.0, 0.0, 0.0, 0.0),
+        att(100_000),  # time went back 1.05 s: reordered, not a reboot
+    ]
+    msgs = good[:33] + bad + good[33:]
+    recs = feed(tr, msgs)
+    assert tr.skipped == {
+        "zero_quaternion": 1,
+        "gimbal_failure": 1,
+        "gimbal_not_tracking": 1,
+        "non_finite": 1,
+        "attitude_out_of_range": 1,
+        "out_of_order": 1,
+    }
+    assert len(recs) == 40 and recs[-1].t_boot_s == pytest.approx(103.905)
+
+
+def test_camera_tracking_needs_a_field_of_view_and_an_attitude() -> None:
+    tr = Tracker()
+    feed(tr, flight(n=5))
+    track = message(
+        "CAMERA_TRACKING_IMAGE_STATUS", 1, 1, 4, 0.5, 0.5, NAN, NAN, NAN, NAN, NAN, 0, compid=100
+    )
+    t = T0_UNIX + 0.46
+    assert tr.handle(t, track) == [] and tr.skipped["no_fov"] == 1
+    fov = message(
+        "CAMERA_FOV_STATUS", 100_450, 0, 0, 0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], 60.0, 45.0, compid=100
+    )
+    tr.handle(t, fov)
+    recs = tr.handle(t, track)
+    assert len(recs) == 1 and recs[0].target == "camera"
+    idle = message(
+        "CAMERA_TRACKING_IMAGE_STATUS", 0, 1, 4, 0.5, 0.5, NAN, NAN, NAN, NAN, NAN, 0, compid=100
+    )
+    assert tr.handle(t, idle) == [] and tr.skipped["tracking_inactive"] == 1
+
+
+def test_sources_and_sysids_are_filtered() -> None:
+    tr = Tracker(TrackerConfig(sources=("landing_target",), sysids=(2,)))
+    feed(tr, flight(sysid=1) + flight(sysid=2))
+    assert tr.targets() == {}
+    assert tr.skipped["foreign_sysid"] == 150
+    assert tr.config.enabled() == {"landing_target"}
+    with pytest.raises(ConfigError, match="sources must be"):
+        TrackerConfig(sources=("radar",))
+    with pytest.raises(ConfigError, match="gimbal_angles"):
+        TrackerConfig(gimbal_angles="sideways")
+
+
+def test_attitude_history_interpolates_yaw_across_the_wrap() -> None:
+    h = AttitudeHistory()
+    h.add(1.0, 0.0, 0.0, math.radians(179.0))
+    h.add(2.0, 0.2, 0.0, math.radians(-179.0))
+    r, _, y = h.at(1.5, 0.5)
+    assert r == pytest.approx(0.1) and math.degrees(y) == pytest.approx(180.0)
+    assert h.at(2.6, 0.5) is None and h.at(0.4, 0.5) is None
