@@ -1,0 +1,399 @@
+"""Replay: MAVLink from a tlog (or any connection) into estimates, files, a summary and a plot.
+
+``mav-observer replay FLIGHT.tlog --output estimates.jsonl [--csv F] [--plot F] [--truth F]``
+(``docs/cli.md``). A tlog is read as fast as the machine allows, decoding only the messages
+the tracker uses; a connection string is read live (``--duration``).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TextIO
+
+from mav_observer.errors import MavObserverError
+from mav_observer.mavlink.connection import ConnectionReader, is_file_source
+from mav_observer.mavlink.tlog import TlogReader
+from mav_observer.mavlink.tracker import Tracker, TrackerConfig
+from mav_observer.records import CSV_COLUMNS, EstimateRecord
+from mav_observer.samples import Status
+
+log = logging.getLogger(__name__)
+
+BEARING_MESSAGES = (
+    "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "CAMERA_TRACKING_IMAGE_STATUS",
+    "MOUNT_ORIENTATION",
+    "MOUNT_STATUS",
+    "LANDING_TARGET",
+)
+
+
+class ReplayError(MavObserverError):
+    """Replay could not run or found nothing to estimate from; the message says why."""
+
+    def __init__(
+        self, message: str, exit_code: int = 1, summary: ReplaySummary | None = None
+    ) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+        #: what was read before giving up (counts, damage), when there was anything
+        self.summary = summary
+
+
+@dataclass
+class Series:
+    """Per-target time series kept for the plot and the truth comparison."""
+
+    t_boot_s: list[float] = field(default_factory=list)
+    rel_pos: list[tuple[float, float, float]] = field(default_factory=list)
+    bias: list[tuple[float, float, float]] = field(default_factory=list)
+    range_m: list[float] = field(default_factory=list)
+    pe: list[float] = field(default_factory=list)
+    status: list[str] = field(default_factory=list)
+
+    def add(self, r: EstimateRecord) -> None:
+        e = r.estimate
+        self.t_boot_s.append(r.t_boot_s)
+        self.rel_pos.append((float(e.x_m[0]), float(e.x_m[1]), float(e.x_m[2])))
+        self.bias.append((float(e.a_mps[0]), float(e.a_mps[1]), float(e.a_mps[2])))
+        self.range_m.append(e.range_m)
+        self.pe.append(e.excitation)
+        self.status.append(str(e.status))
+
+
+@dataclass
+class TargetSummary:
+    sysid: int
+    target: str
+    source: str
+    estimates: int = 0
+    first_t_boot_s: float | None = None
+    last_t_boot_s: float | None = None
+    excited_s: float = 0.0
+    covered_s: float = 0.0
+    final: EstimateRecord | None = None
+
+    def add(self, r: EstimateRecord, excitation_min: float) -> None:
+        if self.final is not None and self.last_t_boot_s is not None:
+            dt = r.t_boot_s - self.last_t_boot_s
+            if dt > 0:
+                self.covered_s += dt
+                prev = self.final.estimate
+                if prev.excitation >= excitation_min and prev.status not in (
+                    Status.NOT_OBSERVABLE,
+                    Status.STALE,
+                ):
+                    self.excited_s += dt
+        if self.first_t_boot_s is None:
+            self.first_t_boot_s = r.t_boot_s
+        self.last_t_boot_s = r.t_boot_s
+        self.estimates += 1
+        self.final = r
+
+    @property
+    def excited_share(self) -> float:
+        return self.excited_s / self.covered_s if self.covered_s > 0 else 0.0
+
+
+@dataclass
+class ReplaySummary:
+    """What a replay read, used, skipped and estimated."""
+
+    source: str
+    bytes_total: int = 0
+    messages_read: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+    used: dict[str, int] = field(default_factory=dict)
+    skipped: dict[str, int] = field(default_factory=dict)
+    damage: dict[str, int] = field(default_factory=dict)
+    events: dict[str, int] = field(default_factory=dict)
+    first_t_unix_s: float | None = None
+    last_t_unix_s: float | None = None
+    targets: dict[str, TargetSummary] = field(default_factory=dict)
+    estimates_written: int = 0
+    wall_s: float = 0.0
+    series: dict[str, Series] = field(default_factory=dict)
+
+    @property
+    def messages_per_s(self) -> float:
+        return self.messages_read / self.wall_s if self.wall_s > 0 else math.inf
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "bytes": self.bytes_total,
+            "messages_read": self.messages_read,
+            "messages_by_type": self.by_type,
+            "used": self.used,
+            "skipped": self.skipped,
+            "damage": self.damage,
+            "events": self.events,
+            "first_t_unix_s": self.first_t_unix_s,
+            "last_t_unix_s": self.last_t_unix_s,
+            "estimates_written": self.estimates_written,
+            "wall_s": self.wall_s,
+            "targets": {
+                k: {
+                    "sysid": t.sysid,
+                    "target": t.target,
+                    "source": t.source,
+                    "estimates": t.estimates,
+                    "excited_share": t.excited_share,
+                    "final": None if t.final is None else t.final.to_dict(),
+                }
+                for k, t in self.targets.items()
+            },
+        }
+
+    def text(self) -> str:
+        lines = [f"source: {self.source} ({self.bytes_total} bytes)"]
+        top = ", ".join(f"{k} {v}" for k, v in list(self.by_type.items())[:12])
+        more = len(self.by_type) - 12
+        lines.append(
+            f"messages read: {self.messages_read} of {len(self.by_type)} types: {top}"
+            + (f", and {more} more types" if more > 0 else "")
+        )
+        lines.append("used: " + (", ".join(f"{k} {v}" for k, v in self.used.items()) or "nothing"))
+        lines.append(
+            "skipped: " + (", ".join(f"{k} {v}" for k, v in self.skipped.items()) or "none")
+        )
+        if self.damage:
+            lines.append("damage: " + ", ".join(f"{k} {v}" for k, v in self.damage.items()))
+        if self.events:
+            lines.append("events: " + ", ".join(f"{k} {v}" for k, v in self.events.items()))
+        if self.first_t_unix_s is not None and self.last_t_unix_s is not None:
+            a = datetime.fromtimestamp(self.first_t_unix_s, UTC).isoformat(timespec="seconds")
+            b = datetime.fromtimestamp(self.last_t_unix_s, UTC).isoformat(timespec="seconds")
+            lines.append(
+                f"time span: {a} to {b} ({self.last_t_unix_s - self.first_t_unix_s:.1f} s)"
+            )
+        for t in self.targets.values():
+            lines.append(
+                f"bearing source: vehicle {t.sysid} target {t.target!r} from {t.source}: "
+                f"{t.estimates} estimates, enough excitation "
+                f"{100 * t.excited_share:.0f} % of the time"
+            )
+            if t.final is not None:
+                e = t.final.estimate
+                tp = t.final.target_pos_ned_m
+                tp_txt = (
+                    "unknown" if tp is None else "[" + ", ".join(f"{v:.2f}" for v in tp) + "] m"
+                )
+                lines.append(
+                    f"  final estimate at t_boot {t.final.t_boot_s:.2f} s: rel_pos_ned "
+                    f"[{', '.join(f'{v:.2f}' for v in e.x_m)}] m, range {e.range_m:.2f} m, bias "
+                    f"[{', '.join(f'{v:.3f}' for v in e.a_mps)}] m/s, target_pos_ned {tp_txt}, "
+                    f"status {e.status}"
+                )
+        lines.append(
+            f"estimates written: {self.estimates_written}; {self.messages_read} messages in "
+            f"{self.wall_s:.2f} s ({self.messages_per_s:,.0f} messages/s)"
+        )
+        return "\n".join(lines)
+
+
+def _messages(
+    source: str, tracker: Tracker, duration_s: float | None
+) -> tuple[Iterator[tuple[float, Any]], Any]:
+    if is_file_source(source):
+        reader: Any = TlogReader(source, tracker.config.wanted_message_ids())
+        return iter(reader), reader
+    if Path(source).suffix in (".tlog", ".rlog") and not Path(source).exists():
+        raise ReplayError(f"no such file: {source}")
+    reader = ConnectionReader(source, duration_s=duration_s)
+    return iter(reader), reader
+
+
+def _progress(enabled: bool, total: int | None) -> Any:
+    if not enabled:
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # progress is a nicety
+        return None
+    return tqdm(total=total, unit="B", unit_scale=True, file=sys.stderr, leave=False)
+
+
+def replay(
+    source: str,
+    *,
+    tracker_config: TrackerConfig | None = None,
+    output_jsonl: Path | None = None,
+    output_csv: Path | None = None,
+    keep_series: bool = False,
+    duration_s: float | None = None,
+    progress: bool = False,
+) -> ReplaySummary:
+    """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
+    the source has no usable velocity or bearing stream."""
+    tracker = Tracker(tracker_config)
+    exc_min = tracker.config.observer.excitation_min
+    summary = ReplaySummary(source=source)
+    if is_file_source(source):
+        summary.bytes_total = Path(source).stat().st_size
+    t0 = time.perf_counter()
+    messages, reader = _messages(source, tracker, duration_s)
+    bar = _progress(progress and isinstance(reader, TlogReader), summary.bytes_total or None)
+    with ExitStack() as stack:
+        jsonl: TextIO | None = None
+        writer: Any = None
+        try:
+            if output_jsonl is not None:
+                jsonl = stack.enter_context(open(output_jsonl, "w", encoding="utf-8"))
+            if output_csv is not None:
+                fh = stack.enter_context(open(output_csv, "w", encoding="utf-8", newline=""))
+                writer = csv.writer(fh)
+                writer.writerow(CSV_COLUMNS)
+        except OSError as exc:
+            raise ReplayError(f"cannot write output: {exc}") from exc
+        targets = summary.targets
+        handle = tracker.handle
+        is_tlog = isinstance(reader, TlogReader)
+        for n, (t, msg) in enumerate(messages, 1):
+            records = handle(t, msg)
+            if n % 4096 == 0:
+                if is_tlog:
+                    reader.drop(tracker.redundant_message_ids())
+                if bar is not None:
+                    bar.update(reader.position - bar.n)
+            for r in records:
+                key = f"{r.sysid}/{r.target}"
+                ts = targets.get(key)
+                if ts is None:
+                    ts = targets[key] = TargetSummary(r.sysid, r.target, r.source)
+                ts.add(r, exc_min)
+                if jsonl is not None:
+                    jsonl.write(r.to_json())
+                    jsonl.write("\n")
+                if writer is not None:
+                    writer.writerow(r.csv_row())
+                if keep_series:
+                    summary.series.setdefault(key, Series()).add(r)
+                summary.estimates_written += 1
+    if bar is not None:
+        bar.close()
+    summary.wall_s = time.perf_counter() - t0
+    summary.used = dict(tracker.used.most_common())
+    summary.skipped = dict(tracker.skipped.most_common())
+    summary.events = {k: v for k, v in tracker.events.items() if k != "targets"}
+    if isinstance(reader, TlogReader):
+        st = reader.stats
+        summary.messages_read = st.records
+        summary.by_type = st.by_name()
+        summary.damage = st.damage()
+        summary.first_t_unix_s, summary.last_t_unix_s = st.first_t_unix_s, st.last_t_unix_s
+        for reason, count in st.decode_errors.items():
+            summary.skipped[reason] = summary.skipped.get(reason, 0) + count
+    else:
+        summary.messages_read = sum(reader.counts.values())
+        summary.by_type = dict(reader.counts.most_common())
+    _check_usable(summary, tracker)
+    return summary
+
+
+def _check_usable(summary: ReplaySummary, tracker: Tracker) -> None:
+    found = (
+        ", ".join(f"{k} {v}" for k, v in summary.by_type.items()) or "no MAVLink messages at all"
+    )
+    if summary.messages_read == 0:
+        raise ReplayError(
+            f"{summary.source}: no MAVLink messages found (not a tlog, or empty)",
+            exit_code=3,
+            summary=summary,
+        )
+    problems = []
+    if not tracker.used.get("LOCAL_POSITION_NED"):
+        problems.append("no usable velocity stream (LOCAL_POSITION_NED)")
+    if not summary.targets:
+        wanted = sorted(tracker.enabled)
+        problems.append(
+            f"no usable bearing stream for the sources {wanted} "
+            f"({', '.join(BEARING_MESSAGES)}, or HOME_POSITION for 'home')"
+        )
+    if problems:
+        skipped = ", ".join(f"{k} {v}" for k, v in summary.skipped.items()) or "none"
+        raise ReplayError(
+            f"{summary.source}: " + "; ".join(problems) + f".\nThe log has: {found}.\n"
+            f"Skipped messages by reason: {skipped}.",
+            exit_code=3,
+            summary=summary,
+        )
+
+
+# -- truth (the emitter's JSON Lines) ---------------------------------------------
+
+
+def read_truth(path: Path) -> dict[str, dict[str, list[Any]]]:
+    """Emitter truth file -> per ``"sysid/target"``: ``t_boot_s``, ``rel_pos_ned_m``,
+    ``bias_ned_mps`` lists (time ordered)."""
+    out: dict[str, dict[str, list[Any]]] = {}
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise ReplayError(f"cannot read the truth file: {exc}") from exc
+    for lineno, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            d = json.loads(line)
+            key = f"{int(d['sysid'])}/{d['target']}"
+            t = float(d["t_boot_s"])
+            x = [float(v) for v in d["rel_pos_ned_m"]]
+            a = [float(v) for v in d["bias_ned_mps"]]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ReplayError(f"{path}:{lineno}: bad truth record: {exc!r}") from exc
+        s = out.setdefault(key, {"t_boot_s": [], "rel_pos_ned_m": [], "bias_ned_mps": []})
+        s["t_boot_s"].append(t)
+        s["rel_pos_ned_m"].append(x)
+        s["bias_ned_mps"].append(a)
+    return out
+
+
+def truth_errors(series: Series, truth: dict[str, list[Any]]) -> dict[str, Any]:
+    """Position and bias errors of ``series`` against the truth interpolated at its times."""
+    import numpy as np
+
+    tt = np.asarray(truth["t_boot_s"])
+    order = np.argsort(tt, kind="stable")
+    tt = tt[order]
+    xs = np.asarray(truth["rel_pos_ned_m"])[order]
+    as_ = np.asarray(truth["bias_ned_mps"])[order]
+    t = np.asarray(series.t_boot_s)
+    inside = (t >= tt[0]) & (t <= tt[-1])
+    t = t[inside]
+    x_true = np.column_stack([np.interp(t, tt, xs[:, i]) for i in range(3)])
+    a_true = np.column_stack([np.interp(t, tt, as_[:, i]) for i in range(3)])
+    xhat = np.asarray(series.rel_pos)[inside]
+    ahat = np.asarray(series.bias)[inside]
+    return {
+        "t_boot_s": t,
+        "pos_err_m": np.linalg.norm(xhat - x_true, axis=1),
+        "range_true_m": np.linalg.norm(x_true, axis=1),
+        "bias_err_mps": np.linalg.norm(ahat - a_true, axis=1),
+    }
+
+
+def last_third_errors(errors: dict[str, Any]) -> dict[str, float]:
+    """RMS-free summary over the last third of the run: worst position error relative to the
+    range, worst bias error."""
+    import numpy as np
+
+    t = errors["t_boot_s"]
+    if len(t) == 0:
+        return {"max_rel_pos_err": math.nan, "max_bias_err_mps": math.nan}
+    sel = t >= t[0] + 2.0 * (t[-1] - t[0]) / 3.0
+    return {
+        "max_rel_pos_err": float(np.max(errors["pos_err_m"][sel] / errors["range_true_m"][sel])),
+        "max_bias_err_mps": float(np.max(errors["bias_err_mps"][sel])),
+        "samples": int(np.sum(sel)),
+    }

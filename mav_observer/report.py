@@ -1,0 +1,103 @@
+"""The replay report plot (PNG; needs matplotlib: ``pip install 'mav-observer[plots]'``).
+
+One column per target: relative position estimate (N, E, D) and range, bias estimate,
+excitation level with the status as a coloured band; with a truth file, the position and bias
+errors too.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from mav_observer.errors import MavObserverError
+
+STATUS_COLOURS = {
+    "converging": "#f0c040",
+    "converged": "#40a040",
+    "not observable": "#d04040",
+    "stale": "#909090",
+}
+
+
+class PlotError(MavObserverError):
+    """The plot cannot be made (matplotlib missing, unwritable file)."""
+
+
+def plot_replay(
+    series: dict[str, Any],
+    path: Path,
+    *,
+    title: str,
+    errors: dict[str, dict[str, Any]] | None = None,
+    excitation_min: float = 0.01,
+) -> None:
+    """Write the report for ``series`` (``{"sysid/target": Series}``) to ``path``."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        import numpy as np
+    except ImportError as exc:
+        raise PlotError("--plot needs matplotlib: pip install 'mav-observer[plots]'") from exc
+    keys = list(series)
+    if not keys:
+        raise PlotError("nothing to plot: no estimates")
+    rows = 4 if errors else 3
+    fig, axes = plt.subplots(
+        rows, len(keys), figsize=(7.0 * len(keys), 2.6 * rows), sharex="col", squeeze=False
+    )
+    for col, key in enumerate(keys):
+        s = series[key]
+        t = np.asarray(s.t_boot_s)
+        t0 = t[0] if len(t) else 0.0
+        tr = t - t0
+        x = np.asarray(s.rel_pos).reshape(-1, 3)
+        a = np.asarray(s.bias).reshape(-1, 3)
+        ax = axes[0][col]
+        for i, lab in enumerate(("north", "east", "down")):
+            ax.plot(tr, x[:, i], lw=0.8, label=lab)
+        ax.plot(tr, s.range_m, "k-", lw=1.0, label="range")
+        ax.set_ylabel("target - vehicle (m)")
+        ax.set_title(f"{title}: {key}", fontsize=9)
+        ax.legend(fontsize=7, ncol=4)
+        ax.grid(alpha=0.3)
+        ax = axes[1][col]
+        for i, lab in enumerate(("north", "east", "down")):
+            ax.plot(tr, a[:, i], lw=0.8, label=lab)
+        ax.set_ylabel("bias a (m/s)")
+        ax.legend(fontsize=7, ncol=3)
+        ax.grid(alpha=0.3)
+        ax = axes[2][col]
+        ax.semilogy(tr, np.maximum(np.asarray(s.pe), 1e-6), "k-", lw=0.8, label="excitation")
+        ax.axhline(excitation_min, color="r", ls="--", lw=0.8, label="not observable below")
+        start = 0
+        for j in range(1, len(tr) + 1):  # one band per run of equal status
+            if j == len(tr) or s.status[j] != s.status[start]:
+                end = tr[min(j, len(tr) - 1)]
+                colour = STATUS_COLOURS.get(s.status[start], "w")
+                ax.axvspan(tr[start], end, color=colour, alpha=0.15, lw=0)
+                start = j
+        ax.set_ylabel("excitation")
+        ax.legend(fontsize=7, title="band: status", title_fontsize=7)
+        ax.grid(alpha=0.3, which="both")
+        if errors:
+            ax = axes[3][col]
+            err = errors.get(key)
+            if err is not None and len(err["t_boot_s"]):
+                te = err["t_boot_s"] - t0
+                ax.semilogy(te, err["pos_err_m"], lw=0.8, label="|x - xhat| (m)")
+                ax.semilogy(te, 0.05 * err["range_true_m"], "r--", lw=0.8, label="5 % of range")
+                ax.semilogy(te, err["bias_err_mps"], lw=0.8, label="|a - ahat| (m/s)")
+                ax.legend(fontsize=7)
+            ax.set_ylabel("error against truth")
+            ax.grid(alpha=0.3, which="both")
+        axes[rows - 1][col].set_xlabel("t (s, autopilot clock, from the first estimate)")
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=100)
+    except OSError as exc:
+        raise PlotError(f"cannot write the plot: {exc}") from exc
+    finally:
+        plt.close(fig)
