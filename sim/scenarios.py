@@ -35,6 +35,18 @@ class Scenario:
     x_of_t: Callable[[np.ndarray], np.ndarray]
     xdot_of_t: Callable[[np.ndarray], np.ndarray]
     description: str = ""
+    #: The target's own constant velocity ``w`` (m/s); the vehicle's velocity error is then
+    #: ``b = w - a``. Zero: a static target, ``a = -b``.
+    target_vel_mps: np.ndarray | None = None
+
+    @property
+    def w_mps(self) -> np.ndarray:
+        return np.zeros(self.n) if self.target_vel_mps is None else self.target_vel_mps
+
+    @property
+    def vel_error_mps(self) -> np.ndarray:
+        """``b``: true vehicle velocity minus measured (wind-like), ``w - a``."""
+        return self.w_mps - self.a_mps
 
     def x(self, t: np.ndarray | float) -> np.ndarray:
         """True relative position (m) at ``t``; shape (n,) for a scalar ``t``."""
@@ -199,6 +211,7 @@ def moving_target(
         x_of_t=offset,
         xdot_of_t=offset_dot,
         description=f"target at {w.tolist()} m/s followed by a weaving vehicle",
+        target_vel_mps=w,
     )
 
 

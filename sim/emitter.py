@@ -1,0 +1,533 @@
+"""The software MAVLink emitter: a scenario as a vehicle and its gimbal or camera would send it.
+
+Streams (each at its own rate, on the vehicle's simulated clock):
+
+* HEARTBEAT (1 Hz; a quadrotor running ArduPilot), SYSTEM_TIME (1 Hz), SYS_STATUS (1 Hz);
+* ATTITUDE and ATTITUDE_QUATERNION (``attitude_hz``), LOCAL_POSITION_NED and
+  GLOBAL_POSITION_INT (``position_hz``; velocity with the scenario's error and noise);
+* the bearing stream (``bearing_hz``), with the scenario's noise, dropouts and latency:
+
+  ==========================  =================================================================
+  ``bearing``                 messages
+  ==========================  =================================================================
+  ``gimbal``                  GIMBAL_DEVICE_ATTITUDE_STATUS, yaw in the vehicle frame (ArduPilot)
+  ``gimbal_earth``            GIMBAL_DEVICE_ATTITUDE_STATUS, yaw in the earth frame
+  ``camera``                  CAMERA_TRACKING_IMAGE_STATUS (camera component 100) with
+                              CAMERA_FOV_STATUS, the gimbal pointing only roughly at the target
+  ``mount``                   MOUNT_ORIENTATION
+  ``mount_status``            MOUNT_STATUS (ArduPilot, centidegrees, no time)
+  ``landing_target``          LANDING_TARGET, MAV_FRAME_BODY_FRD, downward camera
+  ``landing_target_local``    LANDING_TARGET, MAV_FRAME_LOCAL_FRD
+  ==========================  =================================================================
+
+* optionally ``background_hz`` messages per second of other telemetry (VFR_HUD, RAW_IMU,
+  SERVO_OUTPUT_RAW, ...), as an autopilot sends.
+
+Every bearing message is built by inverting the reader's frame chain
+(:mod:`mav_observer.mavlink.adapters`, ``docs/frames.md``), from the true line of sight with
+isotropic angular noise. Output: a tlog file and/or any pymavlink output string (127.0.0.1 in
+tests and examples), plus the truth as JSON Lines, one line per bearing message, keyed by its
+``t_boot_s`` (the vehicle clock) and ``t_unix_s`` (the tlog time of the message).
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import math
+import struct
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO, TextIO
+
+import numpy as np
+
+from mav_observer.frames import quat_from_euler
+from mav_observer.mavlink import adapters
+from mav_observer.mavlink.dialect import codec, connect, mavlink
+from sim.scenarios import Scenario
+from sim.stream import perturb_bearings
+from sim.vehicle import Vehicle, VehicleState
+
+BEARINGS = (
+    "gimbal",
+    "gimbal_earth",
+    "camera",
+    "mount",
+    "mount_status",
+    "landing_target",
+    "landing_target_local",
+)
+#: The reader's target name for each bearing stream (truth records use it).
+TARGET_OF = {
+    "gimbal": "gimbal",
+    "gimbal_earth": "gimbal",
+    "camera": "camera",
+    "mount": "mount",
+    "mount_status": "mount_status",
+    "landing_target": "landing_target_0",
+    "landing_target_local": "landing_target_0",
+}
+AUTOPILOT = 1
+CAMERA = 100
+ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M = -35.363261, 149.165230, 584.0
+EARTH_R_M = 6_378_137.0
+
+
+@dataclass(frozen=True)
+class EmitterConfig:
+    """What to emit. Rates in Hz, angles in degrees, times in seconds."""
+
+    bearing: str = "gimbal"
+    sysid: int = 1
+    duration_s: float = 300.0
+    attitude_hz: float = 20.0
+    position_hz: float = 10.0
+    bearing_hz: float = 10.0
+    background_hz: float = 0.0
+    bearing_noise_deg: float = 0.0
+    velocity_noise_mps: float = 0.0
+    drop_prob: float = 0.0
+    latency_s: float = 0.0
+    camera_hfov_deg: float = 60.0
+    camera_vfov_deg: float = 45.0
+    camera_pointing_error_deg: float = 4.0
+    t0_unix_s: float = 1_767_225_600.0  # 2026-01-01T00:00:00Z
+    boot_at_start_s: float = 120.0  # the autopilot booted this long before the scenario starts
+    landing_target_unix_time: bool = False
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.bearing not in BEARINGS:
+            raise ValueError(f"bearing must be one of {BEARINGS}, got {self.bearing!r}")
+        for name in ("attitude_hz", "position_hz", "bearing_hz"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.drop_prob < 1.0:
+            raise ValueError(f"drop_prob must be in [0, 1), got {self.drop_prob}")
+        if self.latency_s < 0.0 or self.duration_s <= 0.0:
+            raise ValueError("latency_s must be >= 0 and duration_s > 0")
+
+
+@dataclass(frozen=True)
+class Emission:
+    """One message on the wire: when it leaves (simulated seconds from the start) and its bytes."""
+
+    t_emit_s: float
+    frame: bytes
+    truth: dict[str, Any] | None = None
+
+
+class Emitter:
+    """Generates the messages of a scenario in time order (pure: no I/O; see :func:`run`)."""
+
+    def __init__(self, scenario: Scenario, config: EmitterConfig, vehicle: Vehicle | None = None):
+        self.scenario = scenario
+        self.config = config
+        self.vehicle = vehicle if vehicle is not None else Vehicle(scenario)
+        self.rng = np.random.default_rng(config.seed)
+        self._codecs = {comp: codec(config.sysid, comp) for comp in (AUTOPILOT, CAMERA)}
+
+    # -- clocks ---------------------------------------------------------------------------
+    def boot_ms(self, t: float) -> int:
+        return round((self.config.boot_at_start_s + t) * 1000.0)
+
+    def unix_s(self, t: float) -> float:
+        return self.config.t0_unix_s + t
+
+    def _pack(self, msg: Any, comp: int = AUTOPILOT) -> bytes:
+        return bytes(msg.pack(self._codecs[comp]))
+
+    # -- streams --------------------------------------------------------------------------
+    def _times(self, rate_hz: float, offset_s: float = 0.0) -> np.ndarray:
+        n = math.floor(self.config.duration_s * rate_hz) + 1
+        return offset_s + np.arange(n) / rate_hz
+
+    def emissions(self) -> Iterator[Emission]:
+        """All messages, in emission order."""
+        cfg = self.config
+        streams = [
+            self._heartbeats(),
+            self._attitude(),
+            self._position(),
+            self._bearings(),
+        ]
+        if cfg.background_hz > 0:
+            streams.append(self._background())
+        yield from heapq.merge(*streams, key=lambda e: e.t_emit_s)
+
+    def _heartbeats(self) -> Iterator[Emission]:
+        for t in self._times(1.0, 0.001):
+            if t > self.config.duration_s:
+                break
+            yield Emission(
+                t,
+                self._pack(
+                    mavlink.MAVLink_heartbeat_message(
+                        type=mavlink.MAV_TYPE_QUADROTOR,
+                        autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                        base_mode=mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                        | mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+                        | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+                        | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED,
+                        custom_mode=4,  # GUIDED
+                        system_status=mavlink.MAV_STATE_ACTIVE,
+                        mavlink_version=3,
+                    )
+                ),
+            )
+            yield Emission(
+                t + 0.0005,
+                self._pack(
+                    mavlink.MAVLink_system_time_message(
+                        round(self.unix_s(t) * 1e6), self.boot_ms(t)
+                    )
+                ),
+            )
+            yield Emission(
+                t + 0.0007,
+                self._pack(
+                    mavlink.MAVLink_sys_status_message(
+                        0x3FFFF, 0x3FFFF, 0x3FFFF, 250, 16000, 1200, 80, 0, 0, 0, 0, 0, 0
+                    )
+                ),
+            )
+
+    def _attitude(self) -> Iterator[Emission]:
+        for t in self._times(self.config.attitude_hz, 0.002):
+            if t > self.config.duration_s:
+                break
+            s = self.vehicle.state(t)
+            yield Emission(
+                t,
+                self._pack(
+                    mavlink.MAVLink_attitude_message(
+                        self.boot_ms(t), s.roll, s.pitch, s.yaw, 0.0, 0.0, 0.0
+                    )
+                ),
+            )
+            q = quat_from_euler(s.roll, s.pitch, s.yaw)
+            yield Emission(
+                t + 0.0001,
+                self._pack(
+                    mavlink.MAVLink_attitude_quaternion_message(
+                        self.boot_ms(t), *q, 0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 0.0]
+                    )
+                ),
+            )
+
+    def _position(self) -> Iterator[Emission]:
+        cfg = self.config
+        for t in self._times(cfg.position_hz, 0.004):
+            if t > cfg.duration_s:
+                break
+            s = self.vehicle.state(t)
+            u = s.vel_meas_ned_mps
+            if cfg.velocity_noise_mps > 0:
+                u = u + self.rng.normal(0.0, cfg.velocity_noise_mps, 3)
+            p = s.pos_ned_m
+            yield Emission(
+                t,
+                self._pack(
+                    mavlink.MAVLink_local_position_ned_message(
+                        self.boot_ms(t), p[0], p[1], p[2], u[0], u[1], u[2]
+                    )
+                ),
+            )
+            lat = ORIGIN_LAT_DEG + math.degrees(p[0] / EARTH_R_M)
+            lon = ORIGIN_LON_DEG + math.degrees(
+                p[1] / (EARTH_R_M * math.cos(math.radians(ORIGIN_LAT_DEG)))
+            )
+            yield Emission(
+                t + 0.0001,
+                self._pack(
+                    mavlink.MAVLink_global_position_int_message(
+                        self.boot_ms(t),
+                        int(lat * 1e7),
+                        int(lon * 1e7),
+                        int((ORIGIN_ALT_M - p[2]) * 1000),
+                        int(-p[2] * 1000),
+                        int(u[0] * 100),
+                        int(u[1] * 100),
+                        int(u[2] * 100),
+                        int(math.degrees(s.yaw) % 360 * 100),
+                    )
+                ),
+            )
+
+    def _noisy_los(self, s: VehicleState) -> np.ndarray:
+        y = s.rel_pos_ned_m / np.linalg.norm(s.rel_pos_ned_m)
+        if self.config.bearing_noise_deg > 0:
+            y = perturb_bearings(y[None, :], math.radians(self.config.bearing_noise_deg), self.rng)[
+                0
+            ]
+        return y
+
+    def _bearings(self) -> Iterator[Emission]:
+        cfg = self.config
+        target = TARGET_OF[cfg.bearing]
+        fov_done = -1.0
+        for t in self._times(cfg.bearing_hz, 0.006):
+            if t > cfg.duration_s:
+                break
+            if cfg.bearing == "camera" and t - fov_done >= 1.0:
+                fov_done = t
+                yield Emission(t, self._fov_status(t))
+            if cfg.drop_prob and self.rng.random() < cfg.drop_prob:
+                continue
+            s = self.vehicle.state(t)
+            los = self._noisy_los(s)
+            frames = self._bearing_frames(t, s, los)
+            if not frames:
+                continue
+            truth = {
+                "t_unix_s": self.unix_s(t + cfg.latency_s),
+                "t_boot_s": self.boot_ms(t) / 1000.0,
+                "sysid": cfg.sysid,
+                "target": target,
+                "rel_pos_ned_m": s.rel_pos_ned_m.tolist(),
+                "bias_ned_mps": self.scenario.a_mps.tolist(),
+                "target_pos_ned_m": s.target_pos_ned_m.tolist(),
+                "vehicle_pos_ned_m": s.pos_ned_m.tolist(),
+                "vehicle_vel_meas_ned_mps": s.vel_meas_ned_mps.tolist(),
+                "attitude_rpy_rad": [s.roll, s.pitch, s.yaw],
+            }
+            for i, frame in enumerate(frames):
+                yield Emission(
+                    t + cfg.latency_s + 1e-5 * i, frame, truth if i == len(frames) - 1 else None
+                )
+
+    def _fov_status(self, t: float) -> bytes:
+        cfg = self.config
+        nan = float("nan")
+        i32max = 2**31 - 1
+        msg = mavlink.MAVLink_camera_fov_status_message(
+            self.boot_ms(t),
+            i32max,
+            i32max,
+            i32max,
+            i32max,
+            i32max,
+            i32max,
+            [nan, nan, nan, nan],
+            cfg.camera_hfov_deg,
+            cfg.camera_vfov_deg,
+        )
+        return self._pack(msg, CAMERA)
+
+    def _bearing_frames(self, t: float, s: VehicleState, los: np.ndarray) -> list[bytes]:
+        cfg = self.config
+        kind = cfg.bearing
+        yaw_c = math.atan2(los[1], los[0])
+        pitch_c = -math.asin(max(-1.0, min(1.0, los[2])))
+        nan = float("nan")
+        if kind in ("gimbal", "gimbal_earth", "camera"):
+            if kind == "camera":  # the gimbal points roughly; the tracked point is exact
+                e = math.radians(cfg.camera_pointing_error_deg)
+                yaw_c += e * math.sin(0.31 * t)
+                pitch_c += e * math.cos(0.23 * t)
+            if kind == "gimbal_earth":
+                q = quat_from_euler(0.0, pitch_c, yaw_c)
+                flags = (
+                    adapters.GIMBAL_ROLL_LOCK
+                    | adapters.GIMBAL_PITCH_LOCK
+                    | adapters.GIMBAL_YAW_LOCK
+                    | adapters.GIMBAL_YAW_IN_EARTH_FRAME
+                )
+            else:
+                q = quat_from_euler(0.0, pitch_c, yaw_c - s.yaw)
+                flags = (
+                    adapters.GIMBAL_ROLL_LOCK
+                    | adapters.GIMBAL_PITCH_LOCK
+                    | adapters.GIMBAL_YAW_IN_VEHICLE_FRAME
+                )
+            gimbal = self._pack(
+                mavlink.MAVLink_gimbal_device_attitude_status_message(
+                    0, 0, self.boot_ms(t), flags, list(q), nan, nan, nan, 0, nan, nan, 1
+                )
+            )
+            if kind != "camera":
+                return [gimbal]
+            r_cam = np.array(adapters.gimbal_camera_attitude(q, flags, 0, vehicle_yaw=s.yaw))
+            ray = r_cam.T @ los  # line of sight in the camera frame
+            if ray[0] <= 0:
+                return [gimbal]
+            px = 0.5 + ray[1] / ray[0] / (2 * math.tan(math.radians(cfg.camera_hfov_deg) / 2))
+            py = 0.5 + ray[2] / ray[0] / (2 * math.tan(math.radians(cfg.camera_vfov_deg) / 2))
+            if not (0.0 <= px <= 1.0 and 0.0 <= py <= 1.0):
+                return [gimbal]
+            track = self._pack(
+                mavlink.MAVLink_camera_tracking_image_status_message(
+                    1, 1, 4, px, py, nan, nan, nan, nan, nan, 0
+                ),
+                CAMERA,
+            )
+            return [gimbal, track]
+        if kind == "mount":
+            yaw_rel = math.degrees(math.remainder(yaw_c - s.yaw, 2 * math.pi))
+            return [
+                self._pack(
+                    mavlink.MAVLink_mount_orientation_message(
+                        self.boot_ms(t), 0.0, math.degrees(pitch_c), yaw_rel, math.degrees(yaw_c)
+                    )
+                )
+            ]
+        if kind == "mount_status":
+            yaw_rel = math.degrees(math.remainder(yaw_c - s.yaw, 2 * math.pi))
+            return [
+                self._pack(
+                    mavlink.MAVLink_mount_status_message(
+                        0,
+                        0,
+                        round(math.degrees(pitch_c) * 100),
+                        0,
+                        round(yaw_rel * 100),
+                        2,
+                    )
+                )
+            ]
+        # landing target: line of sight in the sensor frame (downward camera)
+        if kind == "landing_target":
+            r = np.array(s.dcm)
+            sensor = r.T @ los
+            frame_id = adapters.MAV_FRAME_BODY_FRD
+        else:
+            c, sn = math.cos(s.yaw), math.sin(s.yaw)
+            sensor = np.array([c * los[0] + sn * los[1], -sn * los[0] + c * los[1], los[2]])
+            frame_id = adapters.MAV_FRAME_LOCAL_FRD
+        if sensor[2] <= 0.05:  # not below the vehicle: the downward camera cannot see it
+            return []
+        angle_x = math.atan2(sensor[1], sensor[2])
+        angle_y = math.atan2(-sensor[0], sensor[2])
+        t_us = (
+            round(self.unix_s(t) * 1e6) if cfg.landing_target_unix_time else self.boot_ms(t) * 1000
+        )
+        return [
+            self._pack(
+                mavlink.MAVLink_landing_target_message(
+                    t_us,
+                    0,
+                    frame_id,
+                    angle_x,
+                    angle_y,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    0.0,
+                    [1.0, 0.0, 0.0, 0.0],
+                    2,
+                    0,
+                )
+            )
+        ]
+
+    def _background(self) -> Iterator[Emission]:
+        """Other telemetry an autopilot sends, ``background_hz`` messages per second in all."""
+        makers = [
+            lambda t: mavlink.MAVLink_vfr_hud_message(5.0, 5.0, 90, 50, 10.0, 0.1),
+            lambda t: mavlink.MAVLink_raw_imu_message(
+                int(t * 1e6), 1, 2, -1000, 3, 4, 5, 100, 200, 300
+            ),
+            lambda t: mavlink.MAVLink_servo_output_raw_message(
+                int(t * 1e6) & 0xFFFFFFFF, 0, *([1500] * 8)
+            ),
+            lambda t: mavlink.MAVLink_rc_channels_message(self.boot_ms(t), 8, *([1500] * 18), 200),
+            lambda t: mavlink.MAVLink_scaled_pressure_message(self.boot_ms(t), 1013.2, 0.1, 2500),
+            lambda t: mavlink.MAVLink_meminfo_message(1000, 30000),
+            lambda t: mavlink.MAVLink_power_status_message(5000, 5000, 0),
+            lambda t: mavlink.MAVLink_nav_controller_output_message(
+                0.0, 0.0, 90, 90, 10, 0.0, 0.0, 0.0
+            ),
+            lambda t: mavlink.MAVLink_ahrs2_message(0.0, 0.0, 1.0, 584.0, -353632610, 1491652300),
+            lambda t: mavlink.MAVLink_vibration_message(int(t * 1e6), 0.1, 0.1, 0.1, 0, 0, 0),
+        ]
+        per = self.config.background_hz / len(makers)
+        for t in self._times(per, 0.008):
+            if t > self.config.duration_s:
+                break
+            for i, make in enumerate(makers):
+                yield Emission(t + i * 1e-4, self._pack(make(t)))
+
+
+# -- output --------------------------------------------------------------------------
+
+
+class TlogWriter:
+    """Writes tlog records: 8-byte big-endian Unix microseconds, then the frame."""
+
+    def __init__(self, path: Path) -> None:
+        self._fh: BinaryIO = open(path, "wb")  # noqa: SIM115 - closed in close()
+
+    def write(self, t_unix_s: float, frame: bytes) -> None:
+        self._fh.write(struct.pack(">Q", round(t_unix_s * 1e6)) + frame)
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+@dataclass
+class EmitReport:
+    messages: int = 0
+    bearing_messages: int = 0
+    wall_s: float = 0.0
+
+
+def run(
+    emitter: Emitter,
+    *,
+    to: str | None = None,
+    tlog: Path | None = None,
+    truth: Path | None = None,
+    speed: float | None = None,
+    stop: Any = None,
+) -> EmitReport:
+    """Emit everything. ``speed``: 1 real time, 20 twenty times faster, ``None`` or 0 as fast as
+    possible. ``to``: a pymavlink output string (``udpout:127.0.0.1:14550``). ``stop``: an
+    object with ``is_set()`` (a ``threading.Event``) to end early."""
+    report = EmitReport()
+    conn = connect(to, source_system=emitter.config.sysid) if to else None
+    tw = TlogWriter(tlog) if tlog else None
+    th: TextIO | None = open(truth, "w", encoding="utf-8") if truth else None  # noqa: SIM115
+    wall0 = time.monotonic()
+    try:
+        for em in emitter.emissions():
+            if stop is not None and stop.is_set():
+                break
+            if speed:
+                delay = wall0 + em.t_emit_s / speed - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            t_unix = emitter.unix_s(em.t_emit_s)
+            if conn is not None:
+                conn.write(em.frame)
+            if tw is not None:
+                tw.write(t_unix, em.frame)
+            if th is not None and em.truth is not None:
+                th.write(json.dumps(em.truth) + "\n")
+            report.messages += 1
+            if em.truth is not None:
+                report.bearing_messages += 1
+    finally:
+        if conn is not None:
+            conn.close()
+        if tw is not None:
+            tw.close()
+        if th is not None:
+            th.close()
+    report.wall_s = time.monotonic() - wall0
+    return report
+
+
+__all__ = [
+    "BEARINGS",
+    "TARGET_OF",
+    "EmitReport",
+    "Emitter",
+    "EmitterConfig",
+    "TlogWriter",
+    "run",
+]

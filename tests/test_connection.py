@@ -1,0 +1,55 @@
+"""Live MAVLink links on 127.0.0.1: emitter -> UDP or TCP -> reader -> tracker."""
+
+import socket
+import threading
+
+from mav_observer.mavlink.connection import ConnectionReader, is_file_source, split_serial
+from mav_observer.mavlink.tracker import Tracker
+from sim import scenarios
+from sim.emitter import Emitter, EmitterConfig, run
+
+
+def free_port(kind: int) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def read_link(reader_url: str, emitter_url: str) -> Tracker:
+    """The reader is opened (listening) first, then the emitter sends at 30 times real time."""
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=30.0))
+    reader = ConnectionReader(reader_url, duration_s=20.0, idle_timeout_s=2.0)
+    th = threading.Thread(target=run, args=(em,), kwargs={"to": emitter_url, "speed": 30.0})
+    reader.open()
+    th.start()
+    tracker = Tracker()
+    n = 0
+    try:
+        for t, msg in reader:
+            n += len(tracker.handle(t, msg))
+    finally:
+        reader.close()
+        th.join(timeout=10)
+    assert n > 200
+    return tracker
+
+
+def test_udp_loopback() -> None:
+    port = free_port(socket.SOCK_DGRAM)
+    tr = read_link(f"udpin:127.0.0.1:{port}", f"udpout:127.0.0.1:{port}")
+    assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+    assert "bad_data" not in tr.skipped
+
+
+def test_tcp_loopback() -> None:
+    """The reader listens (tcpin), the emitter connects as a client (tcp)."""
+    port = free_port(socket.SOCK_STREAM)
+    tr = read_link(f"tcpin:127.0.0.1:{port}", f"tcp:127.0.0.1:{port}")
+    assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+
+
+def test_source_strings() -> None:
+    assert split_serial("/dev/ttyACM0,115200") == ("/dev/ttyACM0", {"baud": 115200})
+    assert split_serial("udpin:127.0.0.1:14550") == ("udpin:127.0.0.1:14550", {})
+    assert not is_file_source("udpin:127.0.0.1:14550")
+    assert not is_file_source("/dev/ttyACM0")
