@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -35,7 +36,18 @@ from mav_observer.mavlink.dialect import connect  # noqa: E402
 from mav_observer.mavlink.tracker import TrackerConfig  # noqa: E402
 from mav_observer.replay import ReplayError, replay  # noqa: E402
 
-TLOGS = ROOT.parent / "shared" / "tlogs"
+TLOGS = next(
+    (
+        Path(p)
+        for p in (
+            os.environ.get("MAV_OBSERVER_TLOGS"),
+            ROOT.parent / "shared" / "tlogs",
+            "/work/shared/tlogs",
+        )
+        if p and Path(p).is_dir()
+    ),
+    ROOT.parent / "shared" / "tlogs",
+)
 CACHE = ROOT / "bench" / ".cache"
 LONG = CACHE / "long_orbit_1h.tlog"
 

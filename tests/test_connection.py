@@ -1,7 +1,10 @@
 """Live MAVLink links on 127.0.0.1: emitter -> UDP or TCP -> reader -> tracker."""
 
+import os
 import socket
 import threading
+import time
+import tty
 
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source, split_serial
 from mav_observer.mavlink.tracker import Tracker
@@ -46,6 +49,37 @@ def test_tcp_loopback() -> None:
     port = free_port(socket.SOCK_STREAM)
     tr = read_link(f"tcpin:127.0.0.1:{port}", f"tcp:127.0.0.1:{port}")
     assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+
+
+def test_serial_device_with_baud() -> None:
+    """A serial link (a pseudo-terminal pair standing in for the port): DEVICE,BAUD."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    device = os.ttyname(slave)
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=20.0))
+    frames = [e.frame for e in em.emissions()]
+    reader = ConnectionReader(f"{device},115200", duration_s=15.0, idle_timeout_s=1.5)
+    reader.open()
+
+    def write_all() -> None:
+        for i in range(0, len(frames), 50):
+            os.write(master, b"".join(frames[i : i + 50]))
+            time.sleep(0.002)
+
+    th = threading.Thread(target=write_all)
+    th.start()
+    tracker = Tracker()
+    n = 0
+    try:
+        for t, msg in reader:
+            n += len(tracker.handle(t, msg))
+    finally:
+        reader.close()
+        th.join(timeout=10)
+        os.close(master)
+        os.close(slave)
+    assert n > 150
+    assert tracker.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
 
 
 def test_source_strings() -> None:

@@ -4,13 +4,11 @@ import math
 from pathlib import Path
 
 import pytest
-from mavmsg import frame
+from mavmsg import TLOGS, frame
 
 from mav_observer.mavlink.dialect import MSG_ID, codec
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
-from mav_observer.mavlink.tlog import TlogReader
 
-TLOGS = Path(__file__).resolve().parents[2] / "shared" / "tlogs"
 USED = [
     "LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION", "GIMBAL_DEVICE_ATTITUDE_STATUS",
     "MOUNT_STATUS", "MOUNT_ORIENTATION", "LANDING_TARGET", "CAMERA_TRACKING_IMAGE_STATUS",
@@ -38,10 +36,6 @@ def _check(frames: list[bytes]) -> int:
         for name in b.get_fieldnames():
             assert same(getattr(a, name), getattr(b, name)), (b.get_type(), name)
     return len(frames)
-
-
-class _Raw(TlogReader):
-    """A reader that hands over raw frames instead of decoding them."""
 
 
 def _raw_frames(path: Path) -> list[bytes]:

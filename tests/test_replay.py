@@ -9,14 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mavmsg import TLOGS
 
 from mav_observer import replay as rp
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
 from sim import scenarios
 from sim.emitter import BEARINGS, TARGET_OF, Emitter, EmitterConfig, run
-
-TLOGS = Path(__file__).resolve().parents[2] / "shared" / "tlogs"
 
 
 @pytest.fixture(scope="module")

@@ -4,13 +4,13 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from mavmsg import T0_UNIX, frame, tlog
+from mavmsg import T0_UNIX, TLOGS, frame, tlog
 
 from mav_observer.mavlink.dialect import MSG_ID, connect
 from mav_observer.mavlink.tlog import TlogReader
 
-TLOGS = Path(__file__).resolve().parents[2] / "shared" / "tlogs"
 REAL = sorted(TLOGS.glob("*.tlog"))
+assert len(REAL) == 6, f"expected the six shared logs in {TLOGS}, found {REAL}"
 
 
 def pymavlink_counts(path: Path) -> Counter[str]:
