@@ -18,13 +18,10 @@ def free_port(kind: int) -> int:
         return s.getsockname()[1]
 
 
-def read_link(reader_url: str, emitter_url: str) -> Tracker:
-    """The reader is opened (listening) first, then the emitter sends at 30 times real time."""
-    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=30.0))
-    reader = ConnectionReader(reader_url, duration_s=20.0, idle_timeout_s=2.0)
-    th = threading.Thread(target=run, args=(em,), kwargs={"to": emitter_url, "speed": 30.0})
+def track(reader: ConnectionReader, sender: threading.Thread) -> tuple[Tracker, int]:
+    """Open the reader (listening) first, then start the sender; return tracker and estimates."""
     reader.open()
-    th.start()
+    sender.start()
     tracker = Tracker()
     n = 0
     try:
@@ -32,7 +29,16 @@ def read_link(reader_url: str, emitter_url: str) -> Tracker:
             n += len(tracker.handle(t, msg))
     finally:
         reader.close()
-        th.join(timeout=10)
+        sender.join(timeout=10)
+    return tracker, n
+
+
+def read_link(reader_url: str, emitter_url: str) -> Tracker:
+    """The emitter sends at 30 times real time."""
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=30.0))
+    reader = ConnectionReader(reader_url, duration_s=20.0, idle_timeout_s=2.0)
+    th = threading.Thread(target=run, args=(em,), kwargs={"to": emitter_url, "speed": 30.0})
+    tracker, n = track(reader, th)
     assert n > 200
     return tracker
 
@@ -59,23 +65,15 @@ def test_serial_device_with_baud() -> None:
     em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=20.0))
     frames = [e.frame for e in em.emissions()]
     reader = ConnectionReader(f"{device},115200", duration_s=15.0, idle_timeout_s=1.5)
-    reader.open()
 
     def write_all() -> None:
         for i in range(0, len(frames), 50):
             os.write(master, b"".join(frames[i : i + 50]))
             time.sleep(0.002)
 
-    th = threading.Thread(target=write_all)
-    th.start()
-    tracker = Tracker()
-    n = 0
     try:
-        for t, msg in reader:
-            n += len(tracker.handle(t, msg))
+        tracker, n = track(reader, threading.Thread(target=write_all))
     finally:
-        reader.close()
-        th.join(timeout=10)
         os.close(master)
         os.close(slave)
     assert n > 150
