@@ -32,6 +32,7 @@ tests and examples), plus the truth as JSON Lines, one line per bearing message,
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import json
 import math
@@ -476,6 +477,14 @@ class EmitReport:
     wall_s: float = 0.0
 
 
+def _drain(conn: Any, max_reads: int = 100) -> None:
+    """Read and discard what peers sent, so that a ``udpin``/``tcpin`` link accepts them."""
+    with contextlib.suppress(OSError):
+        for _ in range(max_reads):
+            if not conn.recv():
+                return
+
+
 def run(
     emitter: Emitter,
     *,
@@ -493,6 +502,7 @@ def run(
     tw = TlogWriter(tlog) if tlog else None
     th: TextIO | None = open(truth, "w", encoding="utf-8") if truth else None  # noqa: SIM115
     wall0 = time.monotonic()
+    poll_at = 0.0
     try:
         for em in emitter.emissions():
             if stop is not None and stop.is_set():
@@ -503,6 +513,10 @@ def run(
                     time.sleep(delay)
             t_unix = emitter.unix_s(em.t_emit_s)
             if conn is not None:
+                now = time.monotonic()
+                if now >= poll_at:  # a server link (udpin, tcpin) learns its peers in recv()
+                    _drain(conn)
+                    poll_at = now + 0.05
                 conn.write(em.frame)
             if tw is not None:
                 tw.write(t_unix, em.frame)

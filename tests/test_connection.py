@@ -6,7 +6,10 @@ import threading
 import time
 import tty
 
+import pytest
+
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source, split_serial
+from mav_observer.mavlink.dialect import mavlink
 from mav_observer.mavlink.tracker import Tracker
 from sim import scenarios
 from sim.emitter import Emitter, EmitterConfig, run
@@ -33,9 +36,9 @@ def track(reader: ConnectionReader, sender: threading.Thread) -> tuple[Tracker, 
     return tracker, n
 
 
-def read_link(reader_url: str, emitter_url: str) -> Tracker:
-    """The emitter sends at 30 times real time."""
-    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=30.0))
+def read_link(reader_url: str, emitter_url: str, duration_s: float = 30.0) -> Tracker:
+    """The emitter sends ``duration_s`` of the orbit at 30 times real time."""
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=duration_s))
     reader = ConnectionReader(reader_url, duration_s=20.0, idle_timeout_s=2.0)
     th = threading.Thread(target=run, args=(em,), kwargs={"to": emitter_url, "speed": 30.0})
     tracker, n = track(reader, th)
@@ -55,6 +58,53 @@ def test_tcp_loopback() -> None:
     port = free_port(socket.SOCK_STREAM)
     tr = read_link(f"tcpin:127.0.0.1:{port}", f"tcp:127.0.0.1:{port}")
     assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+
+
+def test_reader_as_udp_client() -> None:
+    """udpout: the emitter is a UDP server (as an autopilot's udpin port is): it sends only once
+    the reader's heartbeat has told it where we are."""
+    port = free_port(socket.SOCK_DGRAM)
+    # the first heartbeat may go out before the server is up; the next comes 1 s later
+    tr = read_link(f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}", duration_s=90.0)
+    assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+
+
+def test_reader_as_tcp_client() -> None:
+    """tcp: the emitter listens (tcpin, as SITL's port 5760 does), the reader connects."""
+    port = free_port(socket.SOCK_STREAM)
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=30.0))
+    th = threading.Thread(
+        target=run, args=(em,), kwargs={"to": f"tcpin:127.0.0.1:{port}", "speed": 30.0}
+    )
+    th.start()
+    time.sleep(0.3)  # the server must listen before the client connects
+    reader = ConnectionReader(f"tcp:127.0.0.1:{port}", duration_s=20.0, idle_timeout_s=2.0)
+    tracker, n = track(reader, threading.Thread(target=lambda: None))
+    th.join(timeout=10)
+    assert n > 200
+    assert tracker.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
+
+
+def test_heartbeat_only_where_needed() -> None:
+    """Silent on every link but udpout; never from the ground station's system id 255."""
+    assert ConnectionReader("udpout:127.0.0.1:14550").heartbeat_period_s == 1.0
+    assert ConnectionReader("udpin:127.0.0.1:14550").heartbeat_period_s is None
+    assert ConnectionReader("tcp:127.0.0.1:5760").heartbeat_period_s is None
+    with pytest.raises(ValueError, match="heartbeat_period_s"):
+        ConnectionReader("udpout:127.0.0.1:14550", heartbeat_period_s=0.0)
+    port = free_port(socket.SOCK_DGRAM)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as server:
+        server.bind(("127.0.0.1", port))
+        server.settimeout(3.0)
+        reader = ConnectionReader(f"udpout:127.0.0.1:{port}", duration_s=1.5)
+        for _ in reader:
+            pass
+        data, _ = server.recvfrom(512)
+    msg = mavlink.MAVLink(None).decode(bytearray(data))
+    assert msg.get_type() == "HEARTBEAT"
+    assert (msg.get_srcSystem(), msg.get_srcComponent()) == (254, 191)
+    assert msg.type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+    assert reader.heartbeats_sent == 2
 
 
 def test_serial_device_with_baud() -> None:

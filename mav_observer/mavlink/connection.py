@@ -5,6 +5,13 @@ Accepted: everything ``mavutil.mavlink_connection`` takes (``udpin:127.0.0.1:145
 ``DEVICE,BAUD`` for a serial device at a given baud rate (``/dev/ttyACM0,115200``). A path to an
 existing file is a tlog and goes through :class:`~mav_observer.mavlink.tlog.TlogReader`
 instead (see :func:`is_file_source`).
+
+The reader only listens, with one exception: on a ``udpout:`` link it sends a HEARTBEAT once a
+second, because a UDP server (an autopilot's ``udpin`` port, mavlink-router, BlueOS) only
+sends to peers it has heard from. The heartbeat comes from system 254, component 191
+(MAV_COMP_ID_ONBOARD_COMPUTER), type MAV_TYPE_ONBOARD_CONTROLLER, never from 255: ArduPilot
+treats any heartbeat from its ground station id (MAV_GCS_SYSID / SYSID_MYGCS, 255 by default)
+as its ground station being alive, which would arm the GCS failsafe when we stop.
 """
 
 from __future__ import annotations
@@ -17,9 +24,13 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from mav_observer.mavlink.dialect import connect
+from mav_observer.mavlink.dialect import connect, mavlink
 
 log = logging.getLogger(__name__)
+
+SOURCE_SYSTEM = 254
+SOURCE_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+AUTO = "auto"
 
 URL_PREFIXES = ("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:", "serial:", "mcast:")
 
@@ -29,6 +40,11 @@ def is_file_source(source: str) -> bool:
     if source.startswith(URL_PREFIXES):
         return False
     return os.path.isfile(source) and not source.startswith("/dev/")
+
+
+def default_heartbeat_period_s(source: str) -> float | None:
+    """1 s on ``udpout:`` links (the peer must hear from us first), otherwise ``None`` (silent)."""
+    return 1.0 if source.startswith("udpout:") else None
 
 
 def split_serial(source: str) -> tuple[str, dict[str, Any]]:
@@ -48,6 +64,8 @@ class ConnectionReader:
     a serial port unplugged) is counted in :attr:`link_errors` and reopened after a back-off
     (0.5 s doubling to 8 s). ``clock`` is the arrival clock (Unix seconds), injected for tests.
     BAD_DATA from pymavlink (bad CRC, junk) is yielded like any message so it can be counted.
+    ``heartbeat_period_s``: send a HEARTBEAT this often (seconds), ``None`` never; ``"auto"``
+    follows :func:`default_heartbeat_period_s`.
     """
 
     def __init__(
@@ -58,12 +76,25 @@ class ConnectionReader:
         idle_timeout_s: float | None = None,
         clock: Callable[[], float] = time.time,
         poll_s: float = 0.1,
+        heartbeat_period_s: float | str | None = AUTO,
     ) -> None:
         self.source = source
         self.duration_s = duration_s
         self.idle_timeout_s = idle_timeout_s
         self.clock = clock
         self.poll_s = poll_s
+        if heartbeat_period_s == AUTO:
+            heartbeat_period_s = default_heartbeat_period_s(source)
+        if heartbeat_period_s is not None and (
+            isinstance(heartbeat_period_s, str) or not heartbeat_period_s > 0
+        ):
+            raise ValueError(
+                f"heartbeat_period_s must be a positive number of seconds, None or 'auto', "
+                f"got {heartbeat_period_s!r}"
+            )
+        self.heartbeat_period_s: float | None = heartbeat_period_s
+        self.heartbeats_sent = 0
+        self._next_heartbeat = 0.0
         self.counts: Counter[str] = Counter()
         self.link_errors = 0
         self._conn: Any = None
@@ -72,8 +103,28 @@ class ConnectionReader:
     def open(self) -> None:
         dev, kwargs = split_serial(self.source)
         self._conn = connect(
-            dev, source_system=255, source_component=190, autoreconnect=True, **kwargs
+            dev,
+            source_system=SOURCE_SYSTEM,
+            source_component=SOURCE_COMPONENT,
+            autoreconnect=True,
+            **kwargs,
         )
+        self._next_heartbeat = 0.0
+
+    def _heartbeat(self, now: float) -> None:
+        """Send a HEARTBEAT when one is due (``now``: monotonic seconds)."""
+        if self.heartbeat_period_s is None or now < self._next_heartbeat:
+            return
+        self._next_heartbeat = now + self.heartbeat_period_s
+        mav = self._conn.mav
+        mav.heartbeat_send(
+            mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+            mavlink.MAV_AUTOPILOT_INVALID,
+            0,
+            0,
+            mavlink.MAV_STATE_ACTIVE,
+        )
+        self.heartbeats_sent += 1
 
     def close(self) -> None:
         self._closed = True
@@ -116,6 +167,7 @@ class ConnectionReader:
                         retry_at, backoff = now + backoff, min(8.0, 2 * backoff)
                         continue
                 try:
+                    self._heartbeat(now)
                     msg = self._conn.recv_match(blocking=True, timeout=self.poll_s)
                 except OSError as exc:
                     self._drop_link(exc)
