@@ -180,8 +180,12 @@ class ExcitationWindow:
         """The convergence indicator (see the module docstring)."""
         dx, da = self._tot_dx, self._tot_da
         scale = max(range_m, 1e-9)
-        ndx = math.sqrt(sum(v * v for v in dx))
-        nda = math.sqrt(sum(v * v for v in da))
+        if self.n == 3:
+            ndx = math.sqrt(dx[0] * dx[0] + dx[1] * dx[1] + dx[2] * dx[2])
+            nda = math.sqrt(da[0] * da[0] + da[1] * da[1] + da[2] * da[2])
+        else:
+            ndx = math.sqrt(sum(v * v for v in dx))
+            nda = math.sqrt(sum(v * v for v in da))
         return (ndx + self._tot_covered * nda) / scale
 
     # -- persistence ----------------------------------------------------------------

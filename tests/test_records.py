@@ -37,7 +37,7 @@ def test_record_fields_and_meaning() -> None:
     assert d["rel_pos_ned_m"] == [3.0, 4.0, 12.0]
     assert d["target_pos_ned_m"] == [13.0, 24.0, -3.0]  # vehicle + (target - vehicle)
     assert d["status"] == "not observable"
-    assert json.loads(r.to_json()) == d
+    assert json.loads(r.to_json()) == d  # these values are exact at the JSON resolution
 
 
 def test_no_position_and_non_finite_values_give_null() -> None:
@@ -56,3 +56,32 @@ def test_csv_row_matches_the_columns() -> None:
     assert (
         named["rel_pos_d_m"] == 12.0 and named["target_pos_e_m"] == 5.0 and named["corrected"] == 1
     )
+
+
+def _close(a: object, b: object, tol: float) -> bool:
+    if isinstance(a, list):
+        return isinstance(b, list) and all(_close(p, q, tol) for p, q in zip(a, b, strict=True))
+    if isinstance(a, float):
+        return abs(a - b) <= tol  # type: ignore[operator]
+    return a == b
+
+
+def test_json_is_the_dict_rounded_to_the_documented_resolution() -> None:
+    rng = np.random.default_rng(7)
+    tol = {"t_unix_s": 5e-7, "t_boot_s": 5e-7, "bias_ned_mps": 5e-6}
+    for _ in range(200):
+        x = rng.normal(0.0, 300.0, 3)
+        est = Estimate(
+            float(rng.uniform(0, 1e4)), x, rng.normal(0.0, 2.0, 3), float(np.linalg.norm(x)),
+            float(rng.uniform(0, 1)) ** 6, float(rng.uniform(1, 1e4)), Status.CONVERGING,
+            bool(rng.integers(2)), 0.0, 0.0, 0.0,
+        )  # fmt: skip
+        vpos = None if rng.integers(4) == 0 else tuple(rng.normal(0.0, 500.0, 3).tolist())
+        r = EstimateRecord(1.7e9 + float(rng.uniform(0, 1e7)), est.t_s, 3, "gimbal", "G", est, vpos)
+        d, j = r.to_dict(), json.loads(r.to_json())
+        assert j.keys() == d.keys()
+        for key, value in d.items():
+            if key in ("pe", "cond_m"):  # 6 significant digits
+                assert math.isclose(j[key], value, rel_tol=6e-6), key
+            else:
+                assert _close(j[key], value, tol.get(key, 5e-5)), (key, j[key], value)
