@@ -25,6 +25,14 @@ def message(name: str, *fields: Any, sysid: int = 1, compid: int = 1) -> Any:
     return codec().decode(bytearray(frame(name, *fields, sysid=sysid, compid=compid)))
 
 
+def landing_target_fields(
+    time_usec: int, target_num: int, frame_id: int, angle_x: float, angle_y: float
+) -> tuple[Any, ...]:
+    """LANDING_TARGET's positional fields with the rest zero (no position, no size)."""
+    zeros = (0.0,) * 6  # distance, size_x, size_y, x, y, z
+    return (time_usec, target_num, frame_id, angle_x, angle_y, *zeros, [1.0, 0.0, 0.0, 0.0], 0, 0)
+
+
 def tlog(path: Path, records: list[tuple[float, bytes]]) -> Path:
     """Write ``(t_unix_s, frame)`` records as a tlog."""
     with open(path, "wb") as fh:

@@ -4,7 +4,7 @@ import math
 from pathlib import Path
 
 import pytest
-from mavmsg import TLOGS, frame
+from mavmsg import TLOGS, frame, landing_target_fields
 
 from mav_observer.mavlink.dialect import MSG_ID, codec
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
@@ -94,23 +94,7 @@ def test_arrays_extensions_truncation_and_mavlink1() -> None:
             nan,
             1,
         ),
-        frame(
-            "LANDING_TARGET",
-            123,
-            2,
-            12,
-            0.1,
-            -0.2,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            0.0,
-            [1.0, 0.0, 0.0, 0.0],
-            0,
-            0,
-        ),
+        frame("LANDING_TARGET", *landing_target_fields(123, 2, 12, 0.1, -0.2)),
         frame("LOCAL_POSITION_NED", 10, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),  # trailing zeros trimmed
         frame("ATTITUDE", 10, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0, v1=True),
         frame(

@@ -3,7 +3,7 @@
 import math
 
 import pytest
-from mavmsg import T0_UNIX, message
+from mavmsg import T0_UNIX, landing_target_fields, message
 
 from mav_observer.errors import ConfigError
 from mav_observer.mavlink.tracker import AttitudeHistory, Tracker, TrackerConfig
@@ -80,21 +80,7 @@ def test_two_vehicles_and_landing_targets_get_their_own_observers() -> None:
         for num in (0, 3):
             msgs.append(
                 message(
-                    "LANDING_TARGET",
-                    ms * 1000,
-                    num,
-                    12,
-                    0.1 * num,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    0.0,
-                    [1.0, 0.0, 0.0, 0.0],
-                    0,
-                    0,
+                    "LANDING_TARGET", *landing_target_fields(ms * 1000, num, 12, 0.1 * num, 0.0)
                 )
             )
     msgs.sort(key=lambda m: getattr(m, "time_boot_ms", getattr(m, "time_usec", 0) // 1000))
