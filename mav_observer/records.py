@@ -24,6 +24,7 @@ Shared by replay (JSON Lines and CSV files) and the service (Zenoh). Fields:
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,30 +111,14 @@ class EstimateRecord:
         nums = (x0, x1, x2, float(e.range_m), a0, a1, a2)
         tail = (float(e.excitation), float(e.cond_m), str(e.status), _BOOL[bool(e.corrected)])
         if vp is None:
-            if math.isfinite(sum((*head[:2], *nums, *tail[:2]))):  # all finite
-                return _JSON_NO_POS % (*head, *nums, *tail)
+            template, pos = _JSON_NO_POS, ()
         else:
             v0, v1, v2 = (float(v) for v in vp)
-            if math.isfinite(sum((*head[:2], *nums, v0, v1, v2, *tail[:2]))):  # all finite
-                tp = (v0 + x0, v1 + x1, v2 + x2)
-                return _JSON_POS % (*head, *nums, *tp, v0, v1, v2, *tail)
-        return self._to_json_checked()
-
-    def _to_json_checked(self) -> str:
-        """:meth:`to_json` for a record holding a non-finite number (written as ``null``)."""
-        e = self.estimate
-        t, p, v, g = _T, _P, _V, _G
-        return (
-            f'{{"schema": {SCHEMA_VERSION}, "t_unix_s": {_num(self.t_unix_s, t)}, '
-            f'"t_boot_s": {_num(self.t_boot_s, t)}, '
-            f'"sysid": {self.sysid}, "target": "{self.target}", "source": "{self.source}", '
-            f'"rel_pos_ned_m": {_vec(e.x_m, p)}, "range_m": {_num(e.range_m, p)}, '
-            f'"bias_ned_mps": {_vec(e.a_mps, v)}, '
-            f'"target_pos_ned_m": {_vec(self.target_pos_ned_m, p)}, '
-            f'"vehicle_pos_ned_m": {_vec(self.vehicle_pos_ned_m, p)}, '
-            f'"pe": {_num(e.excitation, g)}, "cond_m": {_num(e.cond_m, g)}, '
-            f'"status": "{e.status}", "corrected": {_BOOL[bool(e.corrected)]}}}'
-        )
+            template, pos = _JSON_POS, (v0 + x0, v1 + x1, v2 + x2, v0, v1, v2)
+        vals = (*head, *nums, *pos, *tail)
+        if math.isfinite(sum((*head[:2], *nums, *pos, *tail[:2]))):  # all finite: fast path
+            return template % vals
+        return _format_checked(template, vals)
 
     def csv_row(self) -> list[object]:
         e = self.estimate
@@ -178,11 +163,14 @@ _JSON_POS = (
 _JSON_NO_POS = _JSON_HEAD + '"target_pos_ned_m": null, "vehicle_pos_ned_m": null, ' + _JSON_TAIL
 
 
-def _num(v: float, fmt: str) -> str:
-    """JSON number in format ``fmt`` (``null`` for a non-finite value)."""
-    f = float(v)
-    return fmt % f if math.isfinite(f) else "null"
+_PLACEHOLDER = re.compile(r"%(?:\.\d+)?[fgds]")
 
 
-def _vec(v: Any, fmt: str) -> str:
-    return "null" if v is None else f"[{_num(v[0], fmt)}, {_num(v[1], fmt)}, {_num(v[2], fmt)}]"
+def _format_checked(template: str, vals: tuple[Any, ...]) -> str:
+    """``template % vals`` with every non-finite number written as ``null``."""
+    fmts = _PLACEHOLDER.findall(template)
+    parts = tuple(
+        "null" if f[-1] in "fg" and not math.isfinite(v) else f % v
+        for f, v in zip(fmts, vals, strict=True)
+    )
+    return _PLACEHOLDER.sub("%s", template) % parts

@@ -8,6 +8,7 @@ import tty
 
 import pytest
 
+from mav_observer.errors import ConfigError
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source, split_serial
 from mav_observer.mavlink.dialect import mavlink
 from mav_observer.mavlink.tracker import Tracker
@@ -90,7 +91,7 @@ def test_heartbeat_only_where_needed() -> None:
     assert ConnectionReader("udpout:127.0.0.1:14550").heartbeat_period_s == 1.0
     assert ConnectionReader("udpin:127.0.0.1:14550").heartbeat_period_s is None
     assert ConnectionReader("tcp:127.0.0.1:5760").heartbeat_period_s is None
-    with pytest.raises(ValueError, match="heartbeat_period_s"):
+    with pytest.raises(ConfigError, match="heartbeat_period_s"):
         ConnectionReader("udpout:127.0.0.1:14550", heartbeat_period_s=0.0)
     port = free_port(socket.SOCK_DGRAM)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as server:

@@ -85,3 +85,15 @@ def test_json_is_the_dict_rounded_to_the_documented_resolution() -> None:
                 assert math.isclose(j[key], value, rel_tol=6e-6), key
             else:
                 assert _close(j[key], value, tol.get(key, 5e-5)), (key, j[key], value)
+
+
+def test_non_finite_with_a_position_gives_null_only_where_it_is() -> None:
+    est = Estimate(
+        12.5, np.array([3.0, math.nan, 12.0]), np.array([0.1, -0.2, 0.0]), math.nan, 0.25, 3.0,
+        Status.STALE, False, 0.0, 0.05, 0.01,
+    )  # fmt: skip
+    r = EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (1.0, 2.0, 3.0))
+    d = json.loads(r.to_json())
+    assert d["rel_pos_ned_m"] == [3.0, None, 12.0] and d["range_m"] is None
+    assert d["target_pos_ned_m"] == [4.0, None, 15.0]
+    assert d["vehicle_pos_ned_m"] == [1.0, 2.0, 3.0] and d["corrected"] is False

@@ -24,6 +24,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from typing import Any
 
+from mav_observer.errors import ConfigError
 from mav_observer.mavlink.dialect import connect, mavlink
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ class ConnectionReader:
         if heartbeat_period_s is not None and (
             isinstance(heartbeat_period_s, str) or not heartbeat_period_s > 0
         ):
-            raise ValueError(
+            raise ConfigError(
                 f"heartbeat_period_s must be a positive number of seconds, None or 'auto', "
                 f"got {heartbeat_period_s!r}"
             )
