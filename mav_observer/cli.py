@@ -2,9 +2,13 @@
 
 Sub-commands:
 
-* ``demo``: run a simulated scenario through the observer and print the estimate
-  converging to the truth (the simulator lives in the separate ``sim`` package and runs as
-  its own process, ``python -m sim demo``; ``mav_observer`` never imports it).
+* ``run``: the service: MAVLink in, estimates out over Zenoh, until stopped
+  (``docs/service.md``).
+* ``listen [KEY_EXPR]``: print what a running service publishes.
+* ``demo``: the emitter, the service and a subscriber on loopback, with a live table of
+  estimate against truth until converged (the simulator lives in the separate ``sim``
+  package and runs as its own process, ``python -m sim live``; ``mav_observer`` never
+  imports it).
 * ``replay SOURCE``: replay a tlog (or read a live connection) into estimates, files, a
   summary and a plot (``docs/cli.md``).
 * ``version``: print the version.
@@ -13,11 +17,13 @@ Sub-commands:
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from mav_observer import __version__
 from mav_observer.errors import MavObserverError
@@ -31,13 +37,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"mav-observer {__version__}")
     parser.add_argument(
-        "--log-level", default="WARNING", choices=("DEBUG", "INFO", "WARNING", "ERROR")
+        "--log-level",
+        default=None,
+        choices=("DEBUG", "INFO", "WARNING", "ERROR"),
+        help="default: WARNING, or the settings' log.level for run",
     )
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser(
         "demo",
-        help="run a simulated scenario and show the estimate converging "
-        "(options: mav-observer demo --help)",
+        help="the emitter, the service and a subscriber on loopback: a live table of "
+        "estimate against truth until converged (options: mav-observer demo --help)",
     )
     rp = sub.add_parser(
         "replay",
@@ -76,8 +85,166 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--duration", type=float, help="seconds to read a live connection")
     rp.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no summary")
+    _add_run_parser(sub)
+    _add_listen_parser(sub)
     sub.add_parser("version", help="print the version")
     return parser
+
+
+def _add_run_parser(sub: Any) -> None:
+    run = sub.add_parser(
+        "run",
+        help="the service: read MAVLink, publish estimates over Zenoh until stopped",
+        description="Read MAVLink telemetry, run one observer per vehicle and target and "
+        "publish estimates and status over Zenoh until SIGTERM or SIGINT. Settings: defaults, "
+        "then --config FILE (TOML), then these flags (docs/service.md).",
+    )
+    run.add_argument("--config", type=Path, help="settings file (TOML)")
+    run.add_argument(
+        "--print-config", action="store_true", help="print the effective settings and exit"
+    )
+    run.add_argument("--mavlink", help="MAVLink source (default udpin:127.0.0.1:14550)")
+    run.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file")
+    run.add_argument("--zenoh-mode", choices=("peer", "client", "router"))
+    run.add_argument(
+        "--zenoh-listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="listen on this endpoint (repeatable; default tcp/127.0.0.1:7447)",
+    )
+    run.add_argument(
+        "--zenoh-connect", action="append", metavar="ENDPOINT", help="connect (repeatable)"
+    )
+    run.add_argument("--prefix", help="key expression prefix (default mav_observer)")
+    run.add_argument("--estimate-rate-hz", type=float, help="most estimates/s per target, 0: all")
+    run.add_argument("--stale-after-s", type=float, help="no data for this long: stale")
+    run.add_argument("--state-file", help="save and restore the observers here")
+    run.add_argument("--sources", help="bearing sources, comma separated (default auto)")
+    run.add_argument("--gimbal-angles", choices=("flags", "body"))
+    run.add_argument("--sysid", type=int, action="append", help="only this vehicle (repeatable)")
+    run.add_argument("--k", type=float, help="observer gain k (1/s)")
+    run.add_argument("--k-star", type=float, help="observer gain k* (1/s)")
+    run.add_argument("--initial-range-m", type=float, help="first range guess (m)")
+    run.add_argument("--duration", type=float, help="stop after this many seconds")
+    run.add_argument(
+        "--log-level", dest="run_log_level", choices=("DEBUG", "INFO", "WARNING", "ERROR")
+    )
+
+
+def _add_listen_parser(sub: Any) -> None:
+    ls = sub.add_parser(
+        "listen",
+        help="print what a running service publishes",
+        description="Subscribe to KEY_EXPR (default mav_observer/**) and print estimates, "
+        "status and liveliness changes as a table or JSON lines.",
+    )
+    ls.add_argument("key_expr", nargs="?", default="mav_observer/**")
+    ls.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="where the service (or a router) listens (default tcp/127.0.0.1:7447)",
+    )
+    ls.add_argument("--mode", choices=("peer", "client"), default="peer")
+    ls.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file")
+    ls.add_argument("--json", action="store_true", help="JSON lines instead of a table")
+    ls.add_argument("--count", type=int, help="stop after this many samples")
+    ls.add_argument("--duration", type=float, help="stop after this many seconds")
+
+
+def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
+    """The ``run`` flags as a settings layer (only those given)."""
+    o: dict[str, dict[str, object]] = {}
+
+    def put(section: str, key: str, value: object) -> None:
+        if value is not None:
+            o.setdefault(section, {})[key] = value
+
+    put("mavlink", "url", args.mavlink)
+    put("mavlink", "stale_after_s", args.stale_after_s)
+    put("zenoh", "config_file", args.zenoh_config)
+    put("zenoh", "mode", args.zenoh_mode)
+    put("zenoh", "listen", args.zenoh_listen)
+    put("zenoh", "connect", args.zenoh_connect)
+    put("zenoh", "prefix", args.prefix)
+    put("zenoh", "estimate_max_rate_hz", args.estimate_rate_hz)
+    put("state", "file", args.state_file)
+    if args.sources is not None:
+        put("tracker", "sources", [x.strip() for x in args.sources.split(",") if x.strip()])
+    put("tracker", "gimbal_angles", args.gimbal_angles)
+    put("tracker", "sysids", args.sysid)
+    put("observer", "k_per_s", args.k)
+    put("observer", "k_star_per_s", args.k_star)
+    put("observer", "initial_range_m", args.initial_range_m)
+    put("log", "level", args.run_log_level or args.log_level)
+    return o
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    import signal
+
+    from mav_observer import settings as st
+    from mav_observer import zenoh_io
+    from mav_observer.service import Service
+
+    settings = st.resolve(args.config, run_overrides(args))
+    if args.print_config:
+        print(settings.to_toml(), end="")
+        return 0
+    logging.getLogger().setLevel(settings["log"]["level"])
+    z = settings["zenoh"]
+    conf = zenoh_io.session_config(
+        config_file=z["config_file"], mode=z["mode"], listen=z["listen"], connect=z["connect"]
+    )
+    session = zenoh_io.open_session(conf)
+    try:
+        service = Service.from_settings(settings, session)
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: service.stop())
+        logging.getLogger("mav_observer.service").info(
+            "zenoh %s session, listening on %s, connecting to %s",
+            json.loads(conf.get_json("mode")),
+            conf.get_json("listen/endpoints"),
+            conf.get_json("connect/endpoints"),
+        )
+        service.run(duration_s=args.duration)
+    finally:
+        session.close()
+    return 0
+
+
+def cmd_listen(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from mav_observer import zenoh_io
+    from mav_observer.listen import listen
+
+    connect = args.connect or (None if args.zenoh_config else [zenoh_io.DEFAULT_ENDPOINT])
+    conf = zenoh_io.session_config(
+        config_file=args.zenoh_config,
+        mode=args.mode,
+        listen=None if args.zenoh_config else [],
+        connect=connect,
+    )
+    session = zenoh_io.open_session(conf)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        listen(
+            session,
+            args.key_expr,
+            out=sys.stdout,
+            json_lines=args.json,
+            count=args.count,
+            duration_s=args.duration,
+            should_stop=stop.is_set,
+        )
+    except BrokenPipeError:
+        pass  # the reader of our output went away (listen | head)
+    finally:
+        session.close()
+    return 0
 
 
 def _tracker_config(args: argparse.Namespace):
@@ -106,8 +273,6 @@ def _tracker_config(args: argparse.Namespace):
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    import json
-
     from mav_observer import replay as rp
     from mav_observer.report import plot_replay
 
@@ -156,17 +321,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv and argv[0] == "demo":
         # the simulator is a separate program: run it as a child process, options passed on
         try:
-            return subprocess.call([sys.executable, "-m", "sim", "demo", *argv[1:]])
+            return subprocess.call([sys.executable, "-m", "sim", "live", *argv[1:]])
         except KeyboardInterrupt:
             return 130
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=args.log_level or "WARNING",
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
     if args.command == "version":
         print(f"mav-observer {__version__}")
         return 0
     try:
         if args.command == "replay":
             return cmd_replay(args)
+        if args.command == "run":
+            return cmd_run(args)
+        if args.command == "listen":
+            return cmd_listen(args)
     except MavObserverError as exc:
         summary = getattr(exc, "summary", None)
         if summary is not None and not getattr(args, "quiet", False):

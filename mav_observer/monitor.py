@@ -188,6 +188,12 @@ class ExcitationWindow:
             nda = math.sqrt(sum(v * v for v in da))
         return (ndx + self._tot_covered * nda) / scale
 
+    def shift(self, dt_s: float) -> None:
+        """Move the window's contents ``dt_s`` seconds later (rounded to whole buckets): a
+        restored observer carried across a gap keeps the excitation it had seen."""
+        k = round(dt_s / self.bucket_s)
+        self._idx = [i + k for i in self._idx]
+
     # -- persistence ----------------------------------------------------------------
     def to_dict(self) -> dict[str, object]:
         return {

@@ -49,7 +49,15 @@ import numpy as np
 from mav_observer import discrete
 from mav_observer.errors import ConfigError, InvalidSampleError, StateError
 from mav_observer.monitor import ExcitationWindow, MonitorThresholds, StatusMemory, next_status
-from mav_observer.samples import MIN_DIM, BearingSample, Estimate, Status, VelocitySample
+from mav_observer.samples import (
+    MIN_DIM,
+    BearingSample,
+    Estimate,
+    Status,
+    VelocitySample,
+    _check_time,
+    _frozen_vector,
+)
 
 MODES = ("biased", "bias_free")
 #: Sample times closer than this to an interval end are not made breakpoints, and a
@@ -325,6 +333,11 @@ class BiasObserver:
     def estimate(self) -> Estimate | None:
         """The latest estimate produced (by a bearing update or :meth:`predict`)."""
         return self._estimate
+
+    @property
+    def status(self) -> Status:
+        """The status of the latest estimate (``stale`` before any)."""
+        return self._memory.status
 
     @property
     def counts(self) -> dict[str, int]:
@@ -738,6 +751,44 @@ class BiasObserver:
         )
         self._estimate = est
         return est
+
+    def resume(self, t_s: float, dx_m: Sequence[float], v_mps: Sequence[float]) -> None:
+        """Carry the observer across a gap in its data (a service restart) to ``t_s``.
+
+        The estimate moves by ``dx_m`` (m), the change of ``x`` over the gap known from
+        elsewhere: for a vehicle and a target that stays put in the autopilot's local frame,
+        minus the vehicle's displacement in that frame (``ahat`` is not integrated over the
+        gap: where the local position is GPS-true, ``a`` is the velocity's error, which
+        does not move the target in that frame). The
+        velocity ``v_mps`` (the paper's ``v``) holds from ``t_s``. The gains' matrix, the
+        excitation window and the status carry over unchanged (shifted in time by the gap):
+        what the observer had learnt stays learnt. Raises :class:`StateError` if the observer
+        never started or ``t_s`` is before its committed time, :class:`InvalidSampleError` for
+        a non-finite or wrong-sized argument.
+        """
+        if self._t_c is None:
+            raise StateError("resume: the observer has not started, there is nothing to carry")
+        t = _check_time(t_s)
+        if t < self._t_c:
+            raise StateError(f"resume t_s={t} is before the committed time t_s={self._t_c}")
+        n = self.config.n
+        dx = _frozen_vector("dx_m", dx_m, t).tolist()
+        v = _frozen_vector("v_mps", v_mps, t).tolist()
+        if len(dx) != n or len(v) != n:
+            raise InvalidSampleError(f"resume: dx_m and v_mps must have dimension n={n}")
+        gap = t - self._t_c
+        s = self._state
+        s.xh1 = [s.xh1[j] + dx[j] for j in range(n)]
+        self._t_c = t
+        self._velocities = [(t, v)]
+        del self._bearings[:-1]  # the last bearing, now too old to be used, keeps the horizon
+        self._window.shift(gap)
+        since = self._memory.observable_since_s
+        self._memory = StatusMemory(self._memory.status, None if since is None else since + gap)
+        self._xhat_c = None
+        self._diag = None
+        self._cond = None
+        self._estimate = None
 
     # -- persistence ----------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:

@@ -3,6 +3,8 @@
 * ``demo``: run a named scenario and print a table of estimate against truth, then a
   one-line verdict. Exit status 0 if the run ended converged, 2 if not.
 * ``figures``: reproduce the paper's six figures as PNG files (needs matplotlib).
+* ``live``: the emitter, the service and a subscriber on loopback (``mav-observer demo``,
+  :mod:`sim.live`).
 * ``emit``: send a scenario as MAVLink (a vehicle and its gimbal or camera) to a pymavlink
   output string and/or a tlog, with the truth as JSON Lines.
 """
@@ -185,6 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
     em.add_argument("--latency-s", type=float, default=0.0, help="bearing stream latency")
     em.add_argument("--seed", type=int, default=0)
     em.set_defaults(func=cmd_emit)
+    from sim import live
+
+    live.add_parser(sub)
     fig = sub.add_parser("figures", help="reproduce the paper's figures as PNG files")
     fig.add_argument("--out", default="docs/figures", help="output folder")
     fig.add_argument("--duration", type=float, default=300.0)

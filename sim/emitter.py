@@ -38,7 +38,7 @@ import json
 import math
 import struct
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO, TextIO
@@ -493,10 +493,15 @@ def run(
     truth: Path | None = None,
     speed: float | None = None,
     stop: Any = None,
+    silent: Sequence[tuple[float, float]] = (),
+    on_truth: Callable[[dict[str, Any]], None] | None = None,
 ) -> EmitReport:
     """Emit everything. ``speed``: 1 real time, 20 twenty times faster, ``None`` or 0 as fast as
     possible. ``to``: a pymavlink output string (``udpout:127.0.0.1:14550``). ``stop``: an
-    object with ``is_set()`` (a ``threading.Event``) to end early."""
+    object with ``is_set()`` (a ``threading.Event``) to end early. ``silent``: windows
+    ``(start_s, end_s)`` of simulated time in which nothing is sent (a link outage: the
+    vehicle flies on, its messages are lost). ``on_truth``: called with each truth record
+    as its bearing message is sent."""
     report = EmitReport()
     conn = connect(to, source_system=emitter.config.sysid) if to else None
     tw = TlogWriter(tlog) if tlog else None
@@ -507,6 +512,8 @@ def run(
         for em in emitter.emissions():
             if stop is not None and stop.is_set():
                 break
+            if silent and any(a <= em.t_emit_s < b for a, b in silent):
+                continue
             if speed:
                 delay = wall0 + em.t_emit_s / speed - time.monotonic()
                 if delay > 0:
@@ -522,6 +529,8 @@ def run(
                 tw.write(t_unix, em.frame)
             if th is not None and em.truth is not None:
                 th.write(json.dumps(em.truth) + "\n")
+            if on_truth is not None and em.truth is not None:
+                on_truth(em.truth)
             report.messages += 1
             if em.truth is not None:
                 report.bearing_messages += 1

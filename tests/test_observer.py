@@ -481,3 +481,45 @@ def test_not_started_until_both_streams_arrive_and_buffers_stay_bounded() -> Non
         obs.update_bearing(BearingSample(10.0 + 0.01 * i, [0.0, 0.0, 1.0]))
     assert len(obs.to_dict()["bearings"]) <= 17
     assert obs.committed_t_s == pytest.approx(19.99)
+
+
+def test_resume_carries_a_converged_observer_across_a_gap() -> None:
+    """Save after 120 s of orbit, lose 20 s of data, resume moved by the known change of x:
+    the first estimate after the gap is as good as before it and still converged."""
+    sc = scenarios.orbit(duration_s=200.0)
+    events = list(generate(sc, seed=4, noise=Noise(bearing_sigma_deg=0.5)).events())
+    obs = BiasObserver()
+    for ev in events:
+        if ev.t_s >= 120.0:
+            break
+        (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
+    assert obs.status is Status.CONVERGED
+    restored = BiasObserver.from_dict(json.loads(json.dumps(obs.to_dict())))
+    t_c = restored.committed_t_s
+    assert t_c is not None
+    t1 = 140.0
+    dx = (sc.x(t1) - sc.x(t_c)).tolist()
+    restored.resume(t1, dx, sc.v(t1).tolist())
+    after = [ev for ev in events if ev.t_s > t1]
+    est = None
+    for ev in after[:4]:
+        if isinstance(ev, BearingSample):
+            est = restored.update_bearing(ev)
+        else:
+            restored.update_velocity(ev)
+    assert est is not None
+    err = float(np.linalg.norm(est.x_m - sc.x(est.t_s)))
+    assert err < 0.02 * float(np.linalg.norm(sc.x(est.t_s)))
+    assert est.status is Status.CONVERGED
+
+
+def test_resume_refuses_what_it_cannot_carry() -> None:
+    with pytest.raises(StateError, match="has not started"):
+        BiasObserver().resume(1.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    obs = BiasObserver()
+    obs.update_velocity(VelocitySample(10.0, np.array([1.0, 0.0, 0.0])))
+    obs.update_bearing(BearingSample(10.0, np.array([0.0, 1.0, 0.0])))
+    with pytest.raises(StateError, match="before the committed time"):
+        obs.resume(5.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    with pytest.raises(InvalidSampleError, match="dx_m"):
+        obs.resume(20.0, [math.nan, 0.0, 0.0], [0.0, 0.0, 0.0])

@@ -1,5 +1,6 @@
 """Routing MAVLink to observers (mav_observer/mavlink/tracker.py)."""
 
+import functools
 import math
 
 import pytest
@@ -166,3 +167,73 @@ def test_attitude_history_interpolates_yaw_across_the_wrap() -> None:
     r, _, y = h.at(1.5, 0.5)
     assert r == pytest.approx(0.1) and math.degrees(y) == pytest.approx(180.0)
     assert h.at(2.6, 0.5) is None and h.at(0.4, 0.5) is None
+
+
+@functools.cache
+def _converged_tracker():
+    from mav_observer.mavlink.dialect import codec
+    from sim import scenarios
+    from sim.emitter import Emitter, EmitterConfig
+
+    em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=160.0, bearing_noise_deg=0.5))
+    mav = codec()
+    items = [(em.unix_s(e.t_emit_s), mav.decode(bytearray(e.frame))) for e in em.emissions()]
+    tr = Tracker()
+    for t, m in items:
+        if t >= em.unix_s(100.0):
+            break
+        tr.handle(t, m)
+    return tr, items, em
+
+
+def test_exported_observers_resume_where_the_vehicle_is_now() -> None:
+    tr, items, em = _converged_tracker()
+    saved = tr.export_state()
+    assert [(e["sysid"], e["target"]) for e in saved] == [(1, "gimbal")]
+    tr2 = Tracker()
+    tr2.restore(saved)
+    recs = []
+    for t, m in items:
+        if t >= em.unix_s(130.0):  # 30 s later
+            recs += tr2.handle(t, m)
+    assert tr2.events["restored"] == 1
+    first = recs[0]
+    truth = em.vehicle.state(first.t_boot_s - em.boot_ms(0.0) / 1000).rel_pos_ned_m
+    assert math.dist(first.estimate.x_m.tolist(), truth.tolist()) < 0.5
+    assert str(first.estimate.status) == "converged"
+
+
+def test_saved_observers_are_dropped_after_a_reboot_or_a_long_gap() -> None:
+    tr, _items, em = _converged_tracker()
+    saved = tr.export_state()
+    tr2 = Tracker()
+    tr2.restore(saved)
+    tr2.handle(T0_UNIX, lpn(5_000))  # the autopilot clock is far behind: it rebooted
+    assert tr2.events["restore_discarded"] == 1 and tr2.observer(1, "gimbal") is None
+    tr3 = Tracker()
+    tr3.restore_max_gap_s = 10.0
+    tr3.restore(saved)
+    tr3.handle(T0_UNIX, lpn(em.boot_ms(130.0)))
+    assert tr3.events["restore_discarded"] == 1
+
+
+@pytest.mark.parametrize(
+    ("mutate", "match"),
+    [
+        (lambda e: e.update(sysid=0), r"observers\[0\]\.sysid"),
+        (lambda e: e.update(target=""), r"observers\[0\]\.target"),
+        (lambda e: e["vehicle"].update(pos_ned_m=[0.0, 1.0]), r"observers\[0\]\.vehicle"),
+        (lambda e: e["observer"].update(t_c=None), r"observers\[0\]\.observer must be a started"),
+        (lambda e: e["observer"].pop("m"), r"observers\[0\]\.observer: .*'m'"),
+    ],
+)
+def test_restoring_bad_entries_names_them(mutate, match: str) -> None:
+    import copy
+
+    from mav_observer.errors import StateError
+
+    tr, _, _ = _converged_tracker()
+    saved = copy.deepcopy(tr.export_state())
+    mutate(saved[0])
+    with pytest.raises(StateError, match=match):
+        Tracker().restore(saved)

@@ -100,6 +100,8 @@ class ConnectionReader:
         self.link_errors = 0
         self._conn: Any = None
         self._closed = False
+        self._retry_at = 0.0
+        self._backoff = 0.5
 
     def open(self) -> None:
         dev, kwargs = split_serial(self.source)
@@ -145,11 +147,47 @@ class ConnectionReader:
             )
         self._close_link()
 
+    @property
+    def connected(self) -> bool:
+        """True while the link is open (a UDP input is open even when nothing arrives)."""
+        return self._conn is not None
+
+    def recv(self, timeout_s: float | None = None) -> tuple[float, Any] | None:
+        """The next message as ``(t_arrival_s, message)``, or ``None`` if none came within
+        ``timeout_s`` (default :attr:`poll_s`). Opens the link, and reopens it after a
+        failure with a back-off (0.5 s doubling to 8 s); sends the heartbeat when due. Link
+        failures are counted in :attr:`link_errors`, never raised."""
+        if self._closed:
+            return None
+        timeout = self.poll_s if timeout_s is None else timeout_s
+        now = time.monotonic()
+        if self._conn is None:
+            if now < self._retry_at:
+                time.sleep(max(0.0, min(timeout, self._retry_at - now)))
+                return None
+            try:
+                self.open()
+            except OSError as exc:
+                self._drop_link(exc)
+                self._retry_at, self._backoff = now + self._backoff, min(8.0, 2 * self._backoff)
+                return None
+        try:
+            self._heartbeat(now)
+            msg = self._conn.recv_match(blocking=True, timeout=timeout)
+        except OSError as exc:
+            self._drop_link(exc)
+            self._retry_at = time.monotonic() + self._backoff
+            self._backoff = min(8.0, 2 * self._backoff)
+            return None
+        if msg is None:
+            return None
+        self._backoff = 0.5
+        self.counts[msg.get_type()] += 1
+        return self.clock(), msg
+
     def __iter__(self) -> Iterator[tuple[float, Any]]:
         start = time.monotonic()
         last_msg = start
-        backoff = 0.5
-        retry_at = start
         try:
             while not self._closed:
                 now = time.monotonic()
@@ -157,28 +195,10 @@ class ConnectionReader:
                     return
                 if self.idle_timeout_s is not None and now - last_msg >= self.idle_timeout_s:
                     return
-                if self._conn is None:
-                    if now < retry_at:
-                        time.sleep(min(self.poll_s, retry_at - now))
-                        continue
-                    try:
-                        self.open()
-                    except OSError as exc:
-                        self._drop_link(exc)
-                        retry_at, backoff = now + backoff, min(8.0, 2 * backoff)
-                        continue
-                try:
-                    self._heartbeat(now)
-                    msg = self._conn.recv_match(blocking=True, timeout=self.poll_s)
-                except OSError as exc:
-                    self._drop_link(exc)
-                    retry_at, backoff = time.monotonic() + backoff, min(8.0, 2 * backoff)
+                item = self.recv()
+                if item is None:
                     continue
-                if msg is None:
-                    continue
-                backoff = 0.5
                 last_msg = time.monotonic()
-                self.counts[msg.get_type()] += 1
-                yield self.clock(), msg
+                yield item
         finally:
             self.close()

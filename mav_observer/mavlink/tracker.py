@@ -33,7 +33,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
+from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError, StateError
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
 from mav_observer.mavlink import adapters
 from mav_observer.mavlink.adapters import Skip
@@ -190,6 +190,8 @@ class _Vehicle:
     camera_attitude: tuple[float, Any] | None = None
     fov: dict[int, tuple[float, float]] = field(default_factory=dict)
     home: Vec3 | None = None
+    #: messages of this vehicle skipped, by reason (the tracker's ``skipped`` sums all)
+    skipped: Counter[str] = field(default_factory=Counter)
 
 
 class Tracker:
@@ -210,6 +212,9 @@ class Tracker:
         self.skipped: Counter[str] = Counter()
         self.events: Counter[str] = Counter()
         self._warned: Counter[str] = Counter()  # log rate limiting
+        #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
+        self._pending: dict[int, list[dict[str, Any]]] = {}
+        self.restore_max_gap_s = 600.0
         self._handlers: dict[str, Callable[[_Vehicle, float, Any, list[EstimateRecord]], None]] = {
             "LOCAL_POSITION_NED": self._on_local_position,
             "ATTITUDE": self._on_attitude,
@@ -248,12 +253,15 @@ class Tracker:
             handler(veh, t_arrival_s, msg, out)
         except Skip as s:
             self.skipped[s.reason] += 1
+            veh.skipped[s.reason] += 1
         except MavObserverError as exc:
             self.skipped["invalid"] += 1
+            veh.skipped["invalid"] += 1
             log.debug("vehicle %d: %s refused: %s", sysid, mtype, exc)
         except (AttributeError, TypeError, ValueError, ArithmeticError) as exc:
             # a message missing a field or carrying nonsense the checks did not foresee
             self.skipped["malformed"] += 1
+            veh.skipped["malformed"] += 1
             key = f"malformed {mtype} {type(exc).__name__}"
             self._warned[key] += 1
             if self._warned[key] in (1, 10, 100) or self._warned[key] % 1000 == 0:
@@ -312,7 +320,9 @@ class Tracker:
         )
         self.events["autopilot_reboot"] += 1
         keep = veh.autopilot_compid
-        fresh = _Vehicle(veh.sysid, autopilot_compid=keep)
+        fresh = _Vehicle(veh.sysid, autopilot_compid=keep, skipped=veh.skipped)
+        if self._pending.pop(veh.sysid, None):
+            log.warning("vehicle %d: saved observers discarded (autopilot rebooted)", veh.sysid)
         veh.__dict__.update(fresh.__dict__)
 
     # -- vehicle state ----------------------------------------------------------------
@@ -338,11 +348,14 @@ class Tracker:
         veh.position = (tb, pos, vel)
         v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)
         veh.velocity = (tb, v)
+        if veh.sysid in self._pending:
+            self._resume_saved(veh, self._pending.pop(veh.sysid))
         for obs, _ in veh.observers.values():
             try:
                 obs._update_velocity_trusted(tb, v)
             except InvalidSampleError as exc:
                 self.skipped["refused_velocity"] += 1
+                veh.skipped["refused_velocity"] += 1
                 log.debug("vehicle %d: velocity refused: %s", veh.sysid, exc)
         if "home" in self.enabled and veh.home is not None:
             h = veh.home
@@ -562,6 +575,111 @@ class Tracker:
         if self.used.get("ATTITUDE"):
             return frozenset({MSG_ID["ATTITUDE_QUATERNION"]})
         return frozenset()
+
+    # -- persistence ------------------------------------------------------------------
+    def export_state(self) -> list[dict[str, Any]]:
+        """Every started observer with what :meth:`restore` needs to carry it across a gap:
+        its vehicle's latest position and velocity (LOCAL_POSITION_NED frame, autopilot clock)
+        and the whole observer (:meth:`BiasObserver.to_dict`). JSON-serialisable."""
+        out: list[dict[str, Any]] = []
+        for sysid, veh in self.vehicles.items():
+            if veh.position is None:
+                continue
+            tp, pos, vel = veh.position
+            for target, (obs, source) in veh.observers.items():
+                if not obs.started:
+                    continue
+                out.append(
+                    {
+                        "sysid": sysid,
+                        "target": target,
+                        "source": source,
+                        "vehicle": {
+                            "t_boot_s": tp,
+                            "pos_ned_m": list(pos),
+                            "vel_ned_mps": list(vel),
+                        },
+                        "observer": obs.to_dict(),
+                    }
+                )
+        # observers restored but whose vehicle has not come back yet are kept as they were
+        for entries in self._pending.values():
+            out.extend(entries)
+        return out
+
+    def restore(self, entries: list[dict[str, Any]]) -> None:
+        """Take observers saved by :meth:`export_state`. Each waits for its vehicle's first
+        LOCAL_POSITION_NED, then resumes (:meth:`BiasObserver.resume`) moved by minus the
+        vehicle's displacement since it was saved: the target is assumed to have stayed where
+        it was in the local frame (a moving target resumes off by its own displacement, which
+        the observer then corrects). It is discarded, with a warning, if the autopilot's
+        clock went back (a reboot: the local frame may have moved) or more than
+        :attr:`restore_max_gap_s` of vehicle time passed. Raises :class:`StateError` naming
+        the bad entry; nothing is taken then."""
+        checked: dict[int, list[dict[str, Any]]] = {}
+        for i, e in enumerate(entries):
+            where = f"observers[{i}]"
+            if not isinstance(e, dict):
+                raise StateError(f"{where} must be a table, got {type(e).__name__}")
+            sysid, target, source = e.get("sysid"), e.get("target"), e.get("source")
+            if not isinstance(sysid, int) or isinstance(sysid, bool) or not 0 < sysid < 256:
+                raise StateError(f"{where}.sysid must be an integer in 1..255, got {sysid!r}")
+            if not isinstance(target, str) or not target:
+                raise StateError(f"{where}.target must be a non-empty string, got {target!r}")
+            if not isinstance(source, str):
+                raise StateError(f"{where}.source must be a string, got {source!r}")
+            veh = e.get("vehicle")
+            try:
+                tp = float(veh["t_boot_s"])  # type: ignore[index]
+                pos = [float(c) for c in veh["pos_ned_m"]]  # type: ignore[index]
+                vel = [float(c) for c in veh["vel_ned_mps"]]  # type: ignore[index]
+            except (KeyError, TypeError, ValueError) as exc:
+                raise StateError(f"{where}.vehicle is malformed: {exc!r}") from exc
+            if len(pos) != 3 or len(vel) != 3 or not all(map(math.isfinite, (tp, *pos, *vel))):
+                raise StateError(f"{where}.vehicle must hold finite 3-vectors and a time")
+            try:
+                obs = BiasObserver.from_dict(e.get("observer"))  # type: ignore[arg-type]
+            except StateError as exc:
+                raise StateError(f"{where}.observer: {exc}") from exc
+            if obs.config.n != 3 or not obs.started:
+                raise StateError(f"{where}.observer must be a started observer with n = 3")
+            checked.setdefault(sysid, []).append(e)
+        for sysid, es in checked.items():
+            self._pending.setdefault(sysid, []).extend(es)
+
+    def _resume_saved(self, veh: _Vehicle, entries: list[dict[str, Any]]) -> None:
+        """Carry saved observers to the vehicle's current position (see :meth:`restore`)."""
+        tb, pos, vel = veh.position  # type: ignore[misc]
+        for e in entries:
+            obs = BiasObserver.from_dict(e["observer"])
+            saved = e["vehicle"]
+            t_c = obs.committed_t_s
+            gap = tb - t_c  # type: ignore[operator]
+            if gap < 0.0 or gap > self.restore_max_gap_s:
+                why = "autopilot clock went back" if gap < 0.0 else f"{gap:.0f} s old"
+                log.warning(
+                    "vehicle %d: saved observer %r discarded (%s)", veh.sysid, e["target"], why
+                )
+                self.events["restore_discarded"] += 1
+                continue
+            if e["target"] in veh.observers:
+                continue  # a live observer already took its place
+            # the vehicle's position at the committed time, from the saved position and velocity
+            dt = t_c - saved["t_boot_s"]  # type: ignore[operator]
+            p_c = [saved["pos_ned_m"][j] + dt * saved["vel_ned_mps"][j] for j in range(3)]
+            dx = [p_c[j] - pos[j] for j in range(3)]  # x = target - vehicle: minus its move
+            obs.resume(tb, dx, [-vel[0], -vel[1], -vel[2]])
+            veh.observers[e["target"]] = (obs, e["source"])
+            self.events["restored"] += 1
+            log.info(
+                "vehicle %d: restored observer %r (%s), %.1f s of vehicle time after it was "
+                "saved, vehicle moved %.1f m since",
+                veh.sysid,
+                e["target"],
+                str(obs.status),
+                gap,
+                math.sqrt(sum(c * c for c in dx)),
+            )
 
     # -- read-out ---------------------------------------------------------------------
     def targets(self) -> dict[tuple[int, str], str]:

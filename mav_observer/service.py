@@ -1,0 +1,381 @@
+"""The service: MAVLink in, one observer per vehicle and target, estimates out over Zenoh.
+
+:class:`Service` wires the parts together and owns nothing but bookkeeping:
+
+* a :class:`~mav_observer.mavlink.connection.ConnectionReader` (the MAVLink link, reopened
+  by itself when it fails);
+* a :class:`~mav_observer.mavlink.tracker.Tracker` (messages to samples to observers, one per
+  vehicle and target, created when data first arrives);
+* :class:`~mav_observer.zenoh_io.Publications` on one Zenoh session (estimates, a status per
+  vehicle, liveliness, a queryable);
+* optionally a state file (:mod:`mav_observer.statefile`), saved periodically and on stop.
+
+One thread runs the loop: read a message (waiting at most ``poll_s``), hand it to the tracker,
+publish what it produced; every ``tick_s`` do the housekeeping (stale vehicles, the 1 Hz
+status, saving the state). :meth:`Service.stop` (from a signal handler or another thread) ends
+the loop within ``poll_s``; :meth:`Service.run` then publishes a last status, saves the state
+and closes everything. Nothing grows with running time: per vehicle and target a fixed set of
+counters and the latest payloads.
+
+Clocks are injected: ``clock`` (Unix seconds, stamps and ages in the published records) and
+``monotonic`` (seconds, for periods and staleness).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mav_observer import __version__, statefile
+from mav_observer.errors import MavObserverError
+from mav_observer.mavlink.connection import ConnectionReader
+from mav_observer.mavlink.tracker import Tracker
+from mav_observer.records import EstimateRecord
+from mav_observer.settings import Settings
+from mav_observer.zenoh_io import Publications
+
+log = logging.getLogger(__name__)
+
+STATUS_SCHEMA = 1
+STALE = "stale"
+UP = "up"
+
+
+@dataclass
+class _Target:
+    """What the service remembers about one observer (beyond the observer itself)."""
+
+    source: str
+    status: str = ""
+    last_pub_mono: float = -1e300
+    last_estimate_mono: float | None = None
+    last_record: EstimateRecord | None = None
+    estimates: int = 0
+    published: int = 0
+
+
+@dataclass
+class _VehicleView:
+    """The service's bookkeeping for one vehicle: link state, counts, targets."""
+
+    sysid: int
+    first_mono: float
+    last_mono: float
+    state: str = UP
+    counts: Counter[str] = field(default_factory=Counter)
+    counts_at_status: Counter[str] = field(default_factory=Counter)
+    status_mono: float = 0.0
+    targets: dict[str, _Target] = field(default_factory=dict)
+
+
+class Service:
+    """The estimator service (see the module docstring).
+
+    ``reader`` and ``publications`` may be injected (tests); by default they are built from
+    ``settings`` (:meth:`from_settings`).
+    """
+
+    def __init__(
+        self,
+        settings: Settings,
+        reader: ConnectionReader,
+        publications: Publications,
+        *,
+        clock: Callable[[], float] = time.time,
+        monotonic: Callable[[], float] = time.monotonic,
+        poll_s: float = 0.05,
+        tick_s: float = 0.1,
+    ) -> None:
+        self.settings = settings
+        self.reader = reader
+        self.pub = publications
+        self.clock = clock
+        self.monotonic = monotonic
+        self.poll_s = poll_s
+        self.tick_s = tick_s
+        self.tracker = Tracker(settings.tracker_config())
+        self.tracker.restore_max_gap_s = float(settings["state"]["max_gap_s"])
+        z = settings["zenoh"]
+        rate = float(z["estimate_max_rate_hz"])
+        self.min_interval_s = 0.0 if rate <= 0.0 else 1.0 / rate
+        self.status_period_s = float(z["status_period_s"])
+        self.stale_after_s = float(settings["mavlink"]["stale_after_s"])
+        self.max_bearing_age_s = float(settings["observer"]["max_bearing_age_s"])
+        sf = settings["state"]["file"]
+        self.state_file: Path | None = None if sf is None else Path(sf)
+        self.save_period_s = float(settings["state"]["save_period_s"])
+        self.vehicles: dict[int, _VehicleView] = {}
+        self.messages = 0
+        self.state_errors = 0
+        self._stop = threading.Event()
+        self._start_mono = monotonic()
+        self._next_tick = 0.0
+        self._next_save = self._start_mono + self.save_period_s
+        self._link_state = "waiting"
+        self._last_any_mono: float | None = None
+
+    # -- construction -----------------------------------------------------------------
+    @classmethod
+    def from_settings(cls, settings: Settings, session: Any) -> Service:
+        """A service reading ``settings['mavlink']['url']`` and publishing on ``session``."""
+        m = settings["mavlink"]
+        z = settings["zenoh"]
+        reader = ConnectionReader(m["url"], heartbeat_period_s=m["heartbeat_period_s"])
+        pubs = Publications(session, z["prefix"], congestion_control=z["congestion_control"])
+        return cls(settings, reader, pubs)
+
+    # -- control ------------------------------------------------------------------------
+    def stop(self) -> None:
+        """Ask the loop to end (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def run(self, *, duration_s: float | None = None) -> None:
+        """Run until :meth:`stop` (or for ``duration_s``), then shut down cleanly."""
+        self.restore_state()
+        end = None if duration_s is None else self.monotonic() + duration_s
+        log.info(
+            "reading MAVLink from %s, publishing under %s/", self.reader.source, self.pub.prefix
+        )
+        try:
+            while not self._stop.is_set():
+                item = self.reader.recv(self.poll_s)
+                now = self.monotonic()
+                if item is not None:
+                    self.handle(item[0], item[1], now)
+                if now >= self._next_tick:
+                    self.housekeeping(now)
+                    if end is not None and now >= end:
+                        break
+        finally:
+            self.shutdown()
+
+    def shutdown(self) -> None:
+        """Publish a last status for every vehicle, save the state, close the link and the
+        publications (the liveliness tokens go). Idempotent."""
+        if getattr(self, "_shut", False):
+            return
+        self._shut = True
+        now = self.monotonic()
+        for view in self.vehicles.values():
+            self._publish_status(view, now, final=True)
+        self.save_state()
+        self.reader.close()
+        self.pub.close()
+        log.info("stopped after %d messages", self.messages)
+
+    # -- the data path ------------------------------------------------------------------
+    def handle(self, t_unix_s: float, msg: Any, now: float) -> None:
+        """One MAVLink message: count it, give it to the tracker, publish its estimates."""
+        self.messages += 1
+        if self._link_state != UP:
+            log.info(
+                "MAVLink link %s: data%s",
+                self.reader.source,
+                ""
+                if self._last_any_mono is None
+                else f" again after {now - self._last_any_mono:.1f} s",
+            )
+            self._link_state = UP
+        self._last_any_mono = now
+        records = self.tracker.handle(t_unix_s, msg)
+        sysid = msg.get_srcSystem()
+        view = self.vehicles.get(sysid)
+        if view is None:
+            veh = self.tracker.vehicles.get(sysid)
+            if veh is None or veh.autopilot_compid is None:
+                return  # not (yet) a vehicle: a ground station, a stray component
+            view = self._new_vehicle(sysid, now)
+        view.counts[msg.get_type()] += 1
+        if view.state != UP:
+            log.info("vehicle %d: data again after %.1f s", sysid, now - view.last_mono)
+            view.state = UP
+        view.last_mono = now
+        for rec in records:
+            self._on_estimate(view, rec, now)
+
+    def _new_vehicle(self, sysid: int, now: float) -> _VehicleView:
+        view = self.vehicles[sysid] = _VehicleView(sysid, now, now, status_mono=now)
+        self.pub.vehicle(sysid)
+        log.info("vehicle %d: first data, publishing under %s/%d/", sysid, self.pub.prefix, sysid)
+        return view
+
+    def _on_estimate(self, view: _VehicleView, rec: EstimateRecord, now: float) -> None:
+        tgt = view.targets.get(rec.target)
+        if tgt is None:
+            tgt = view.targets[rec.target] = _Target(rec.source)
+        status = str(rec.estimate.status)
+        changed = status != tgt.status
+        if changed:
+            log.info(
+                "vehicle %d, target %s: %s -> %s (range %.1f m, excitation %.3f)",
+                view.sysid,
+                rec.target,
+                tgt.status or "new",
+                status,
+                rec.estimate.range_m,
+                rec.estimate.excitation,
+            )
+            tgt.status = status
+        tgt.estimates += 1
+        tgt.last_record = rec
+        tgt.last_estimate_mono = now
+        if changed or now - tgt.last_pub_mono >= self.min_interval_s:
+            tgt.last_pub_mono = now
+            tgt.published += 1
+            self.pub.estimate(view.sysid, rec.target, rec.to_json())
+
+    # -- housekeeping -------------------------------------------------------------------
+    def housekeeping(self, now: float) -> None:
+        """Stale detection, the periodic status, the periodic save."""
+        self._next_tick = now + self.tick_s
+        if (
+            self._link_state == UP
+            and self._last_any_mono is not None
+            and now - self._last_any_mono > self.stale_after_s
+        ):
+            log.warning(
+                "MAVLink link %s: no data for %.1f s", self.reader.source, self.stale_after_s
+            )
+            self._link_state = STALE
+        for view in self.vehicles.values():
+            if view.state == UP and now - view.last_mono > self.stale_after_s:
+                view.state = STALE
+                log.warning(
+                    "vehicle %d: no data for %.1f s: stale, estimates stop",
+                    view.sysid,
+                    self.stale_after_s,
+                )
+                self._publish_status(view, now)
+            elif now - view.status_mono >= self.status_period_s:
+                self._publish_status(view, now)
+        if self.state_file is not None and now >= self._next_save:
+            self._next_save = now + self.save_period_s
+            self.save_state()
+
+    def _target_status(self, view: _VehicleView, tgt: _Target, now: float) -> str:
+        if view.state == STALE or tgt.last_estimate_mono is None:
+            return STALE
+        if now - tgt.last_estimate_mono > self.max_bearing_age_s:
+            return STALE  # the vehicle talks, but this target's bearings stopped
+        return tgt.status
+
+    def status_document(self, view: _VehicleView, now: float, *, final: bool = False) -> dict:
+        """The status of one vehicle (``docs/schema.md``)."""
+        span = max(now - view.status_mono, 1e-9)
+        rates = {
+            k: round((c - view.counts_at_status.get(k, 0)) / span, 2)
+            for k, c in sorted(view.counts.items())
+        }
+        veh = self.tracker.vehicles.get(view.sysid)
+        observers: dict[str, Any] = {}
+        for name, tgt in sorted(view.targets.items()):
+            rec = tgt.last_record
+            e = None if rec is None else rec.estimate
+            observers[name] = {
+                "source": tgt.source,
+                "status": self._target_status(view, tgt, now),
+                "pe": None if e is None else e.excitation,
+                "cond_m": None if e is None else e.cond_m,
+                "range_m": None if e is None else e.range_m,
+                "last_estimate_age_s": None
+                if tgt.last_estimate_mono is None
+                else round(now - tgt.last_estimate_mono, 3),
+                "estimates": tgt.estimates,
+                "published": tgt.published,
+            }
+        return {
+            "schema": STATUS_SCHEMA,
+            "t_unix_s": self.clock(),
+            "sysid": view.sysid,
+            "service": {
+                "version": __version__,
+                "state": "stopping" if final else "running",
+                "uptime_s": round(now - self._start_mono, 3),
+            },
+            "link": {
+                "url": self.reader.source,
+                "state": view.state,
+                "connected": self.reader.connected,
+                "last_message_age_s": round(now - view.last_mono, 3),
+                "link_errors": self.reader.link_errors,
+            },
+            "rates_hz": rates,
+            "messages": sum(view.counts.values()),
+            "skipped": dict(sorted((veh.skipped if veh else Counter()).items())),
+            "link_skipped": {
+                k: v for k, v in sorted(self.tracker.skipped.items()) if k in _LINK_REASONS
+            },
+            "bearing_sources": sorted({t.source for t in view.targets.values()}),
+            "observers": observers,
+            "events": dict(sorted(self.tracker.events.items())),
+        }
+
+    def _publish_status(self, view: _VehicleView, now: float, *, final: bool = False) -> None:
+        doc = self.status_document(view, now, final=final)
+        view.counts_at_status = Counter(view.counts)
+        view.status_mono = now
+        self.pub.status(view.sysid, json.dumps(doc, separators=(", ", ": ")))
+
+    # -- state file ---------------------------------------------------------------------
+    def restore_state(self) -> None:
+        """Give the tracker the observers of the state file, if there is one. A missing file
+        is normal (first start); an unreadable or invalid one is logged, moved aside to
+        ``<file>.bad`` and the service starts afresh."""
+        path = self.state_file
+        if path is None:
+            return
+        try:
+            saved_unix_s, observers = statefile.load(path)
+            self.tracker.restore(observers)
+        except FileNotFoundError:
+            log.info("state file %s: none yet, starting afresh", path)
+            return
+        except (MavObserverError, OSError) as exc:
+            self.state_errors += 1
+            log.error("state file %s not used: %s", path, exc)
+            try:
+                path.replace(path.with_name(path.name + ".bad"))
+            except OSError as exc2:
+                log.error("cannot move %s aside: %s", path, exc2)
+            return
+        age = self.clock() - saved_unix_s
+        log.info(
+            "state file %s: %d observer(s) saved %.1f s ago, each resumes at its vehicle's "
+            "first position",
+            path,
+            len(observers),
+            age,
+        )
+
+    def save_state(self) -> None:
+        """Save the observers (never raises: a failure is logged and counted)."""
+        if self.state_file is None:
+            return
+        try:
+            statefile.save(self.state_file, self.tracker.export_state(), saved_unix_s=self.clock())
+        except (OSError, TypeError, ValueError) as exc:
+            self.state_errors += 1
+            if self.state_errors in (1, 10, 100) or self.state_errors % 1000 == 0:
+                log.error(
+                    "cannot save the state file %s (%d failures): %s",
+                    self.state_file,
+                    self.state_errors,
+                    exc,
+                )
+
+
+#: Skip reasons that belong to the link rather than to a vehicle.
+_LINK_REASONS = frozenset({"bad_data", "foreign_sysid"})
+
+__all__ = ["STATUS_SCHEMA", "Service"]

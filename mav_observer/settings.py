@@ -1,0 +1,358 @@
+"""The service's settings: defaults, a TOML file, command-line overrides, validation.
+
+Settings are a two-level table, ``section.key`` (``docs/service.md`` lists them all; ``mav-observer
+run --print-config`` prints the effective ones as TOML that :func:`load_toml` reads back).
+They are resolved in this order, later winning: the defaults in :data:`SCHEMA`, the TOML file,
+then the command-line flags. Every value is checked here, at the boundary: an unknown key or a
+bad value is a :class:`~mav_observer.errors.ConfigError` naming ``section.key``.
+
+``None`` (unset) has no TOML spelling: an unset key is left out of the file (and printed as a
+comment).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from mav_observer.errors import ConfigError
+from mav_observer.mavlink.tracker import SOURCES, TrackerConfig
+from mav_observer.observer import ObserverConfig
+
+DEFAULT_MAVLINK_URL = "udpin:127.0.0.1:14550"
+DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+ZENOH_MODES = ("peer", "client", "router")
+
+
+# -- value checkers: each returns the clean value or raises ValueError with the reason --------
+def _number(lo: float | None = None, *, lo_open: bool = False, hi: float | None = None):
+    def check(v: object) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"must be a number, got {v!r}")
+        f = float(v)
+        if not math.isfinite(f):
+            raise ValueError(f"must be finite, got {v!r}")
+        if lo is not None and (f <= lo if lo_open else f < lo):
+            raise ValueError(f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
+        if hi is not None and f > hi:
+            raise ValueError(f"must be <= {hi:g}, got {v!r}")
+        return f
+
+    return check
+
+
+def _optional(check: Callable[[object], Any]) -> Callable[[object], Any]:
+    def opt(v: object) -> Any:
+        return None if v is None else check(v)
+
+    return opt
+
+
+def _choice(*options: str):
+    def check(v: object) -> str:
+        if v not in options:
+            raise ValueError(f"must be one of {list(options)}, got {v!r}")
+        return str(v)
+
+    return check
+
+
+def _string(v: object) -> str:
+    if not isinstance(v, str) or not v:
+        raise ValueError(f"must be a non-empty string, got {v!r}")
+    return v
+
+
+def _bool(v: object) -> bool:
+    if not isinstance(v, bool):
+        raise ValueError(f"must be true or false, got {v!r}")
+    return v
+
+
+def _int(lo: int, hi: int):
+    def check(v: object) -> int:
+        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+            raise ValueError(f"must be an integer in {lo}..{hi}, got {v!r}")
+        return v
+
+    return check
+
+
+def _list_of(check: Callable[[object], Any], *, allow_empty: bool = True):
+    def check_list(v: object) -> list[Any]:
+        if isinstance(v, str) or not isinstance(v, (list, tuple)):
+            raise ValueError(f"must be a list, got {v!r}")
+        if not v and not allow_empty:
+            raise ValueError("must not be empty")
+        out = []
+        for i, item in enumerate(v):
+            try:
+                out.append(check(item))
+            except ValueError as exc:
+                raise ValueError(f"item {i}: {exc}") from None
+        return out
+
+    return check_list
+
+
+def _endpoint(v: object) -> str:
+    s = _string(v)
+    if "/" not in s:
+        raise ValueError(f"must be a Zenoh endpoint such as 'tcp/127.0.0.1:7447', got {v!r}")
+    return s
+
+
+def _heartbeat(v: object) -> float | str | None:
+    if v == "auto" or v is None:
+        return v
+    if v is False:
+        return None
+    return _number(0.0, lo_open=True)(v)
+
+
+def _prefix(v: object) -> str:
+    s = _string(v)
+    if any(c in s for c in "*$?#") or s.startswith("/") or s.endswith("/") or "//" in s:
+        raise ValueError(f"must be a plain key expression without wildcards, got {v!r}")
+    return s
+
+
+#: ``section -> key -> (default, checker, help)``.
+SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
+    "mavlink": {
+        "url": (
+            DEFAULT_MAVLINK_URL,
+            _string,
+            "where the autopilot's telemetry comes from: udpin:, udpout:, tcp:, tcpin:, "
+            "DEVICE,BAUD",
+        ),
+        "heartbeat_period_s": (
+            "auto",
+            _heartbeat,
+            'send our HEARTBEAT this often (s); "auto": only on udpout links; false: never',
+        ),
+        "stale_after_s": (
+            2.0,
+            _number(0.0, lo_open=True),
+            "no message from a vehicle for this long (s): its status is stale",
+        ),
+    },
+    "zenoh": {
+        "config_file": (
+            None,
+            _optional(_string),
+            "a standard Zenoh JSON5 configuration file (mode, endpoints, TLS, authentication)",
+        ),
+        "mode": (
+            None,
+            _optional(_choice(*ZENOH_MODES)),
+            "peer, client or router (unset: the config file's, else peer)",
+        ),
+        "listen": (
+            None,
+            _optional(_list_of(_endpoint)),
+            f"endpoints to listen on (unset: the config file's, else {DEFAULT_ZENOH_ENDPOINT})",
+        ),
+        "connect": (
+            None,
+            _optional(_list_of(_endpoint)),
+            "endpoints to connect to: a router, other peers (unset: the config file's, else none)",
+        ),
+        "prefix": ("mav_observer", _prefix, "the first chunk(s) of every key expression"),
+        "estimate_max_rate_hz": (
+            50.0,
+            _number(0.0),
+            "most estimates per second per target (0: every bearing update)",
+        ),
+        "status_period_s": (1.0, _number(0.05), "status publication period (s)"),
+        "congestion_control": (
+            "drop",
+            _choice("drop", "block"),
+            "when the network is congested: drop an estimate, or block the estimator",
+        ),
+    },
+    "tracker": {
+        "sources": (["auto"], _list_of(_choice("auto", *SOURCES), allow_empty=False), ""),
+        "gimbal_angles": ("flags", _choice("flags", "body"), "body: ArduPilot servo mounts"),
+        "mount_status_yaw": ("vehicle", _choice("vehicle", "earth"), ""),
+        "landing_target_orientation": ("down", _choice("down", "forward"), "PLND_ORIENT"),
+        "landing_target_yaw_align_deg": (0.0, _number(-360.0, hi=360.0), "PLND_YAW_ALIGN"),
+        "camera_hfov_deg": (None, _optional(_number(0.0, lo_open=True, hi=179.0)), ""),
+        "camera_vfov_deg": (None, _optional(_number(0.0, lo_open=True, hi=179.0)), ""),
+        "max_attitude_age_s": (0.5, _number(0.0, lo_open=True), ""),
+        "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
+    },
+    "observer": {
+        "k_per_s": (0.2, _number(0.0, lo_open=True), "gain k (1/s)"),
+        "k_star_per_s": (0.2, _number(0.0, lo_open=True), "gain k* (1/s)"),
+        "mode": ("biased", _choice("biased", "bias_free"), ""),
+        "interpolation": ("linear", _choice("linear", "hold"), ""),
+        "max_bearing_age_s": (2.0, _number(0.0, lo_open=True), "no correction past this (s)"),
+        "max_velocity_age_s": (2.0, _number(0.0, lo_open=True), ""),
+        "window_s": (20.0, _number(0.0, lo_open=True), "excitation window (s)"),
+        "excitation_min": (0.01, _number(0.0), "below: not observable"),
+        "converged_tol": (0.02, _number(0.0, lo_open=True), ""),
+        "initial_range_m": (None, _optional(_number(0.0, lo_open=True)), "first range guess"),
+        "static_hold": (True, _bool, "hold the state while the geometry does not change"),
+        "hold_speed_mps": (0.05, _number(0.0), ""),
+        "hold_innovation_deg": (3.0, _number(0.0), ""),
+    },
+    "state": {
+        "file": (None, _optional(_string), "save observers here and restore them on start"),
+        "save_period_s": (10.0, _number(0.5), "save this often (s), and on stop"),
+        "max_gap_s": (
+            600.0,
+            _number(0.0, lo_open=True),
+            "a saved observer older than this (vehicle time, s) is not restored",
+        ),
+    },
+    "log": {"level": ("INFO", _choice(*LOG_LEVELS), "DEBUG, INFO, WARNING or ERROR")},
+}
+
+
+def defaults() -> dict[str, dict[str, Any]]:
+    """The default settings as a fresh nested dictionary."""
+    return {sec: {k: _copy(v[0]) for k, v in keys.items()} for sec, keys in SCHEMA.items()}
+
+
+def _copy(v: Any) -> Any:
+    return list(v) if isinstance(v, list) else v
+
+
+def merge(base: dict[str, dict[str, Any]], layer: Mapping[str, Any], origin: str) -> None:
+    """Check ``layer`` (``{section: {key: value}}``) and write it over ``base`` in place.
+    ``origin`` names where the layer came from, for error messages."""
+    if not isinstance(layer, Mapping):
+        raise ConfigError(f"{origin}: settings must be a table of sections")
+    for sec, table in layer.items():
+        if sec not in SCHEMA:
+            raise ConfigError(f"{origin}: unknown section [{sec}]; known: {sorted(SCHEMA)}")
+        if not isinstance(table, Mapping):
+            raise ConfigError(f"{origin}: [{sec}] must be a table, got {table!r}")
+        for key, value in table.items():
+            if key not in SCHEMA[sec]:
+                raise ConfigError(
+                    f"{origin}: unknown setting {sec}.{key}; known in [{sec}]: "
+                    f"{sorted(SCHEMA[sec])}"
+                )
+            try:
+                base[sec][key] = SCHEMA[sec][key][1](value)
+            except ValueError as exc:
+                raise ConfigError(f"{origin}: {sec}.{key} {exc}") from None
+
+
+def load_toml(path: Path) -> dict[str, Any]:
+    """Read a TOML settings file (not yet checked: see :func:`resolve`)."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the settings file: {exc.strerror}") from None
+
+
+def resolve(
+    config_file: Path | None = None, overrides: Mapping[str, Mapping[str, Any]] | None = None
+) -> Settings:
+    """Defaults, then ``config_file``, then ``overrides`` (the flags), checked."""
+    d = defaults()
+    if config_file is not None:
+        merge(d, load_toml(config_file), str(config_file))
+    if overrides:
+        merge(d, overrides, "command line")
+    return Settings.from_dict(d)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a valid TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"no TOML form for {v!r}")
+
+
+def to_toml(d: Mapping[str, Mapping[str, Any]]) -> str:
+    """Settings as TOML, with each key's help as a comment; unset keys are comments."""
+    lines: list[str] = []
+    for sec, keys in SCHEMA.items():
+        lines.append(f"[{sec}]")
+        for key, (_, _, help_) in keys.items():
+            v = d[sec][key]
+            comment = f"  # {help_}" if help_ else ""
+            if v is None:
+                lines.append(f"# {key} = (unset){comment}")
+            else:
+                lines.append(f"{key} = {_toml_value(v)}{comment}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Checked settings of the service (see :data:`SCHEMA`); ``values`` keeps the table."""
+
+    values: Mapping[str, Mapping[str, Any]]
+
+    @classmethod
+    def from_dict(cls, d: dict[str, dict[str, Any]]) -> Settings:
+        full = defaults()
+        merge(full, d, "settings")
+        s = cls(full)
+        s.tracker_config()  # cross-field checks of the tracker and observer, named
+        return s
+
+    def __getitem__(self, section: str) -> Mapping[str, Any]:
+        return self.values[section]
+
+    def to_toml(self) -> str:
+        return to_toml(self.values)
+
+    def observer_config(self) -> ObserverConfig:
+        obs = dict(self.values["observer"])
+        known = {f.name for f in fields(ObserverConfig)}
+        try:
+            return ObserverConfig(**{k: v for k, v in obs.items() if k in known})
+        except ConfigError as exc:
+            raise ConfigError(f"[observer] {exc}") from None
+
+    def tracker_config(self) -> TrackerConfig:
+        t = self.values["tracker"]
+        try:
+            return TrackerConfig(
+                sources=tuple(t["sources"]),
+                gimbal_angles=t["gimbal_angles"],
+                mount_status_yaw=t["mount_status_yaw"],
+                landing_target_orientation=t["landing_target_orientation"],
+                landing_target_yaw_align_deg=t["landing_target_yaw_align_deg"],
+                camera_hfov_deg=t["camera_hfov_deg"],
+                camera_vfov_deg=t["camera_vfov_deg"],
+                max_attitude_age_s=t["max_attitude_age_s"],
+                sysids=tuple(t["sysids"]) or None,
+                observer=self.observer_config(),
+            )
+        except ConfigError as exc:
+            raise ConfigError(f"[tracker] {exc}") from None
+
+
+__all__ = [
+    "DEFAULT_MAVLINK_URL",
+    "DEFAULT_ZENOH_ENDPOINT",
+    "SCHEMA",
+    "Settings",
+    "defaults",
+    "load_toml",
+    "merge",
+    "resolve",
+    "to_toml",
+]

@@ -1,0 +1,79 @@
+"""Service settings: defaults, TOML file, flags, validation naming the key, printing."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from mav_observer import settings as st
+from mav_observer.errors import ConfigError
+
+
+def test_defaults_suit_a_companion_computer() -> None:
+    s = st.resolve()
+    assert s["mavlink"]["url"] == "udpin:127.0.0.1:14550"
+    assert s["zenoh"]["mode"] is None and s["zenoh"]["listen"] is None  # embedded default
+    assert s["zenoh"]["prefix"] == "mav_observer"
+    assert s["state"]["file"] is None
+    tc = s.tracker_config()
+    assert tc.sources == ("auto",) and tc.sysids is None
+    assert tc.observer.k_per_s == 0.2
+
+
+def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
+    f = tmp_path / "svc.toml"
+    f.write_text(
+        '[mavlink]\nurl = "tcp:127.0.0.1:5760"\n[observer]\nk_per_s = 0.5\n'
+        '[zenoh]\nlisten = ["tcp/127.0.0.1:7500"]\n[tracker]\nsysids = [1, 2]\n'
+    )
+    s = st.resolve(f, {"observer": {"k_per_s": 0.3}})
+    assert s["mavlink"]["url"] == "tcp:127.0.0.1:5760"
+    assert s["observer"]["k_per_s"] == 0.3
+    assert s["zenoh"]["listen"] == ["tcp/127.0.0.1:7500"]
+    assert s.tracker_config().sysids == (1, 2)
+
+
+@pytest.mark.parametrize(
+    ("layer", "match"),
+    [
+        ({"zenoh": {"lisen": []}}, r"unknown setting zenoh\.lisen"),
+        ({"zeno": {}}, r"unknown section \[zeno\]"),
+        ({"observer": {"k_per_s": -1}}, r"observer\.k_per_s must be > 0"),
+        ({"observer": {"k_per_s": "fast"}}, r"observer\.k_per_s must be a number"),
+        ({"zenoh": {"mode": "server"}}, r"zenoh\.mode must be one of"),
+        ({"zenoh": {"listen": ["127.0.0.1:7447"]}}, r"zenoh\.listen item 0: must be a Zenoh"),
+        ({"zenoh": {"prefix": "a/*"}}, r"zenoh\.prefix must be a plain key"),
+        ({"tracker": {"sysids": [0]}}, r"tracker\.sysids item 0: must be an integer in 1\.\.255"),
+        ({"tracker": {"sources": []}}, r"tracker\.sources must not be empty"),
+        ({"mavlink": {"stale_after_s": 0}}, r"mavlink\.stale_after_s must be > 0"),
+        ({"observer": {"static_hold": 1}}, r"observer\.static_hold must be true or false"),
+        ({"log": {"level": "LOUD"}}, r"log\.level must be one of"),
+    ],
+)
+def test_a_bad_value_is_an_error_naming_the_key(layer: dict, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        st.resolve(None, layer)
+
+
+def test_a_broken_file_is_named(tmp_path: Path) -> None:
+    f = tmp_path / "bad.toml"
+    f.write_text("[mavlink\nurl = 1")
+    with pytest.raises(ConfigError, match=r"bad\.toml: not valid TOML"):
+        st.resolve(f)
+    with pytest.raises(ConfigError, match="cannot read the settings file"):
+        st.resolve(tmp_path / "missing.toml")
+    f.write_text("[observer]\nk_per_s = -3\n")
+    with pytest.raises(ConfigError, match=r"bad\.toml: observer\.k_per_s"):
+        st.resolve(f)
+
+
+def test_printed_settings_read_back_to_the_same(tmp_path: Path) -> None:
+    s = st.resolve(None, {"zenoh": {"connect": ["tcp/127.0.0.1:7448"]}, "state": {"file": "s"}})
+    text = s.to_toml()
+    assert "# config_file = (unset)" in text
+    f = tmp_path / "printed.toml"
+    f.write_text(text)
+    assert tomllib.loads(text)["zenoh"]["connect"] == ["tcp/127.0.0.1:7448"]
+    assert st.resolve(f).values == s.values

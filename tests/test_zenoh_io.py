@@ -1,0 +1,91 @@
+"""Zenoh configuration and the service's publications, on two in-process sessions over
+127.0.0.1 (multicast scouting off everywhere)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import free_tcp_port, wait_for
+
+from mav_observer.errors import ConfigError
+from mav_observer.zenoh_io import Publications, open_session, session_config
+
+
+def get(conf: zenoh.Config, key: str) -> object:
+    return json.loads(conf.get_json(key))
+
+
+def test_the_embedded_default_is_a_loopback_peer_without_multicast() -> None:
+    conf = session_config()
+    assert get(conf, "mode") == "peer"
+    assert get(conf, "listen/endpoints") == ["tcp/127.0.0.1:7447"]
+    assert get(conf, "connect/endpoints") == []
+    assert get(conf, "scouting/multicast/enabled") is False
+
+
+def test_a_config_file_is_honoured_and_gaps_get_safe_defaults(tmp_path: Path) -> None:
+    f = tmp_path / "z.json5"
+    f.write_text('{mode: "router", connect: {endpoints: ["tcp/127.0.0.1:7999"]}}')
+    conf = session_config(config_file=str(f))
+    assert get(conf, "mode") == "router"
+    assert get(conf, "connect/endpoints") == ["tcp/127.0.0.1:7999"]
+    assert get(conf, "listen/endpoints") == ["tcp/127.0.0.1:7447"]  # not every interface
+    assert get(conf, "scouting/multicast/enabled") is False
+    f.write_text('{mode: "peer", scouting: {multicast: {enabled: true}}}')
+    assert get(session_config(config_file=str(f)), "scouting/multicast/enabled") is True
+    # shortcuts win over the file
+    conf = session_config(config_file=str(f), mode="client", connect=["tcp/127.0.0.1:1234"])
+    assert get(conf, "mode") == "client" and get(conf, "listen/endpoints") == []
+
+
+def test_bad_zenoh_configuration_is_a_named_error(tmp_path: Path) -> None:
+    f = tmp_path / "z.json5"
+    f.write_text('{mode: "peer", bogus: 1}')
+    with pytest.raises(ConfigError, match=r"zenoh\.config_file .*z\.json5.*bogus"):
+        session_config(config_file=str(f))
+    with pytest.raises(ConfigError, match="No such file"):
+        session_config(config_file=str(tmp_path / "missing.json5"))
+    port = free_tcp_port()
+    conf = session_config(mode="client", listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    with pytest.raises(ConfigError, match="cannot open the Zenoh session"):
+        open_session(conf)
+
+
+def test_publications_keys_encoding_queryable_and_liveliness(pair) -> None:
+    server, client = pair
+    got: list[tuple[str, str, str]] = []
+    alive: list[tuple[str, str]] = []
+    sub = client.declare_subscriber(
+        "mav_observer/**",
+        lambda s: got.append((str(s.key_expr), s.payload.to_string(), str(s.encoding))),
+    )
+    lsub = client.liveliness().declare_subscriber(
+        "mav_observer/**", lambda s: alive.append((str(s.key_expr), str(s.kind)))
+    )
+    pubs = Publications(server, "mav_observer")
+    pubs.vehicle(3)
+    assert wait_for(lambda: alive == [("mav_observer/3/alive", "SampleKind.PUT")])
+    time.sleep(0.2)
+    pubs.estimate(3, "gimbal", '{"range_m": 12.5}')
+    pubs.status(3, '{"sysid": 3}')
+    assert wait_for(lambda: len(got) == 2)
+    assert got[0] == ("mav_observer/3/gimbal/estimate", '{"range_m": 12.5}', "application/json")
+    assert got[1][0] == "mav_observer/3/status"
+    replies = {
+        str(r.ok.key_expr): r.ok.payload.to_string()
+        for r in client.get("mav_observer/3/**", timeout=2.0)
+    }
+    assert replies == {
+        "mav_observer/3/gimbal/estimate": '{"range_m": 12.5}',
+        "mav_observer/3/status": '{"sysid": 3}',
+    }
+    only = [str(r.ok.key_expr) for r in client.get("mav_observer/3/status", timeout=2.0)]
+    assert only == ["mav_observer/3/status"]
+    pubs.close()
+    assert wait_for(lambda: ("mav_observer/3/alive", "SampleKind.DELETE") in alive)
+    sub.undeclare()
+    lsub.undeclare()
