@@ -148,6 +148,12 @@ def _add_listen_parser(sub: Any) -> None:
     ls.add_argument("--mode", choices=("peer", "client"), default="peer")
     ls.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file")
     ls.add_argument("--json", action="store_true", help="JSON lines instead of a table")
+    ls.add_argument(
+        "--wait-s",
+        type=float,
+        default=10.0,
+        help="client mode: keep trying to reach the router this long",
+    )
     ls.add_argument("--count", type=int, help="stop after this many samples")
     ls.add_argument("--duration", type=float, help="stop after this many seconds")
 
@@ -227,7 +233,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
         listen=None if args.zenoh_config else [],
         connect=connect,
     )
-    session = zenoh_io.open_session(conf)
+    session = zenoh_io.open_session(conf, retry_s=args.wait_s)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -78,17 +79,27 @@ def _insert(conf: zenoh.Config, key: str, value: object) -> None:
         raise ConfigError(f"zenoh {key}={value!r}: {exc}") from None
 
 
-def open_session(conf: zenoh.Config) -> zenoh.Session:
+def open_session(conf: zenoh.Config, *, retry_s: float = 0.0) -> zenoh.Session:
     """Open the session; a refusal (a client with no reachable router, a port in use) is a
-    :class:`ConfigError` saying which endpoints were tried."""
-    try:
-        return zenoh.open(conf)
-    except zenoh.ZError as exc:
-        raise ConfigError(
-            f"cannot open the Zenoh session (mode {conf.get_json('mode')}, listen "
-            f"{conf.get_json('listen/endpoints')}, connect {conf.get_json('connect/endpoints')})"
-            f": {exc}"
-        ) from None
+    :class:`ConfigError` saying which endpoints were tried. ``retry_s``: keep trying for
+    this long first (a client started before its router; Zenoh clients do not wait)."""
+    end = time.monotonic() + retry_s
+    delay = 0.05
+    while True:
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            if time.monotonic() + delay < end:
+                time.sleep(delay)
+                delay = min(1.0, 2 * delay)
+                continue
+            error = exc
+            break
+    raise ConfigError(
+        f"cannot open the Zenoh session (mode {conf.get_json('mode')}, listen "
+        f"{conf.get_json('listen/endpoints')}, connect {conf.get_json('connect/endpoints')})"
+        f": {error}"
+    ) from None
 
 
 class Publications:

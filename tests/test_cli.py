@@ -19,18 +19,23 @@ def test_version(capsys) -> None:
     assert capsys.readouterr().out.strip() == f"mav-observer {__version__}"
 
 
-def test_demo_prints_convergence_and_a_verdict() -> None:
-    proc = _run(
-        "-m",
-        "mav_observer.cli",
-        "demo",
-        "--scenario",
-        "orbit",
-        "--duration",
-        "120",
-        "--every",
-        "20",
-    )
+def test_demo_runs_emitter_service_and_subscriber_to_a_verdict() -> None:
+    """README's main job: the whole chain on loopback, ending by itself."""
+    proc = _run("-m", "mav_observer", "demo", "--speed", "30")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].startswith("scenario orbit")
+    verdict = next(ln for ln in lines if ln.startswith("verdict:"))
+    assert verdict.startswith("verdict: CONVERGED")
+    pct = float(verdict.split(" m (")[1].split(" %")[0])
+    assert pct < 5.0
+    rows = [ln for ln in lines if ln.strip() and ln.split()[0].replace(".", "").isdigit()]
+    assert len(rows) >= 5
+    assert lines[-1].startswith("service stopped: exit 0")
+
+
+def test_offline_demo_prints_convergence_and_a_verdict() -> None:
+    proc = _run("-m", "sim", "demo", "--scenario", "orbit", "--duration", "120", "--every", "20")
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("scenario orbit")
@@ -40,6 +45,19 @@ def test_demo_prints_convergence_and_a_verdict() -> None:
     assert err < 0.01
     rows = [ln for ln in lines if ln.strip() and ln.split()[0].replace(".", "").isdigit()]
     assert len(rows) >= 6
+
+
+def test_run_prints_its_effective_settings_as_toml() -> None:
+    import tomllib
+
+    proc = _run(
+        "-m", "mav_observer", "run", "--print-config", "--zenoh-mode", "router", "--k", "0.3"
+    )
+    assert proc.returncode == 0, proc.stderr
+    doc = tomllib.loads(proc.stdout)
+    assert doc["zenoh"]["mode"] == "router"
+    assert doc["observer"]["k_per_s"] == 0.3
+    assert doc["mavlink"]["url"] == "udpin:127.0.0.1:14550"
 
 
 def test_demo_verdict_is_honest_when_not_converged() -> None:

@@ -1,0 +1,316 @@
+"""Loopback: emitter -> UDP 127.0.0.1 -> the service (its own process) -> Zenoh 127.0.0.1 ->
+a subscriber here. Free ports; every process started here is ended here."""
+
+from __future__ import annotations
+
+import bisect
+import json
+import math
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from conftest import free_tcp_port, wait_for
+
+from mav_observer.zenoh_io import open_session, session_config
+from sim import emitter, scenarios
+from sim.live import free_port, service_command, stop_process
+
+
+@contextmanager
+def service(
+    mav_port: int, z_port: int, log: Path, *extra: str
+) -> Iterator[subprocess.Popen[bytes]]:
+    with open(log, "ab") as fh:
+        proc = subprocess.Popen(
+            service_command(mav_port, z_port, "--log-level", "INFO", *extra),
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+        )
+    try:
+        yield proc
+    finally:
+        stop_process(proc)
+
+
+@contextmanager
+def subscriber(z_port: int, mode: str = "peer") -> Iterator[Sink]:
+    session = open_session(
+        session_config(mode=mode, listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]), retry_s=15.0
+    )
+    sink = Sink()
+    session.declare_subscriber("mav_observer/**", sink.on_sample)
+    session.liveliness().declare_subscriber("mav_observer/**", sink.on_alive, history=True)
+    sink.session = session
+    try:
+        yield sink
+    finally:
+        session.close()
+
+
+class Sink:
+    """What the subscriber received: samples by key with their arrival time, liveliness."""
+
+    def __init__(self) -> None:
+        self.samples: list[tuple[float, str, dict[str, Any]]] = []
+        self.alive: list[tuple[float, str, bool]] = []
+        self.lock = threading.Lock()
+        self.session: Any = None
+
+    def on_sample(self, s: Any) -> None:
+        with self.lock:
+            self.samples.append(
+                (time.monotonic(), str(s.key_expr), json.loads(s.payload.to_bytes()))
+            )
+
+    def on_alive(self, s: Any) -> None:
+        import zenoh
+
+        with self.lock:
+            self.alive.append((time.monotonic(), str(s.key_expr), s.kind == zenoh.SampleKind.PUT))
+
+    def of(self, key: str) -> list[tuple[float, dict[str, Any]]]:
+        with self.lock:
+            return [(t, d) for t, k, d in self.samples if k == key]
+
+
+def connected(sink: Sink, timeout_s: float = 15.0) -> bool:
+    s = sink.session
+    return wait_for(lambda: list(s.info.peers_zid()) or list(s.info.routers_zid()), timeout_s)
+
+
+def emit(
+    port: int,
+    *,
+    duration_s: float,
+    speed: float,
+    sysid: int = 1,
+    bearing: str = "gimbal",
+    silent: tuple[tuple[float, float], ...] = (),
+    truths: Truths | None = None,
+    stop: threading.Event | None = None,
+) -> tuple[threading.Thread, emitter.Emitter]:
+    em = emitter.Emitter(
+        scenarios.orbit(duration_s=duration_s),
+        emitter.EmitterConfig(
+            bearing=bearing,
+            sysid=sysid,
+            duration_s=duration_s,
+            bearing_noise_deg=0.5,
+            seed=sysid,
+        ),
+    )
+
+    def keep(t: dict[str, Any]) -> None:
+        if truths is not None:
+            truths.add(t)
+
+    th = threading.Thread(
+        target=emitter.run,
+        args=(em,),
+        kwargs={
+            "to": f"udpout:127.0.0.1:{port}",
+            "speed": speed,
+            "silent": silent,
+            "on_truth": keep,
+            "stop": stop,
+        },
+        daemon=True,
+    )
+    th.start()
+    return th, em
+
+
+class Truths:
+    """The emitters' truth records by vehicle, matched to estimates by bearing time (the
+    service maps a sensor's clock onto the autopilot's, within a few ms)."""
+
+    def __init__(self) -> None:
+        self.by_sysid: dict[int, tuple[list[float], list[dict[str, Any]]]] = {}
+
+    def add(self, t: dict[str, Any]) -> None:
+        times, recs = self.by_sysid.setdefault(t["sysid"], ([], []))
+        times.append(t["t_boot_s"])
+        recs.append(t)
+
+    def at(self, sysid: int, t_boot_s: float, tol_s: float = 0.02) -> dict[str, Any] | None:
+        times, recs = self.by_sysid.get(sysid, ([], []))
+        i = bisect.bisect_left(times, t_boot_s)
+        best = min(
+            (j for j in (i - 1, i) if 0 <= j < len(times)),
+            key=lambda j: abs(times[j] - t_boot_s),
+            default=None,
+        )
+        if best is None or abs(times[best] - t_boot_s) > tol_s:
+            return None
+        return recs[best]
+
+
+def errors(est: dict[str, Any], truth: dict[str, Any]) -> tuple[float, float]:
+    """(position error relative to the range, bias error in m/s)."""
+    xt = truth["rel_pos_ned_m"]
+    rel = math.dist(est["rel_pos_ned_m"], xt) / math.hypot(*xt)
+    return rel, math.dist(est["bias_ned_mps"], truth["bias_ned_mps"])
+
+
+def ports() -> tuple[int, int]:
+    return free_port(socket.SOCK_DGRAM), free_tcp_port()
+
+
+def test_two_vehicles_gimbal_and_landing_target_converge_on_their_own_keys(
+    tmp_path: Path,
+) -> None:
+    mav, zp = ports()
+    truths = Truths()
+    with service(mav, zp, tmp_path / "svc.log", "--estimate-rate-hz", "0"), subscriber(zp) as sink:
+        assert connected(sink)
+        time.sleep(0.3)
+        t1, _ = emit(mav, duration_s=150.0, speed=30.0, sysid=1, truths=truths)
+        t2, _ = emit(
+            mav, duration_s=150.0, speed=30.0, sysid=2, bearing="landing_target", truths=truths
+        )
+        t1.join(30)
+        t2.join(30)
+        time.sleep(0.3)
+    for sysid, target in ((1, "gimbal"), (2, "landing_target_0")):
+        est = [d for _, d in sink.of(f"mav_observer/{sysid}/{target}/estimate")]
+        assert len(est) > 1000, (sysid, target, len(est))
+        assert {d["sysid"] for d in est} == {sysid}
+        last_third = [d for d in est if d["t_boot_s"] >= est[-1]["t_boot_s"] - 50.0]
+        matched = [(d, truths.at(sysid, d["t_boot_s"])) for d in last_third]
+        errs = [errors(d, t) for d, t in matched if t is not None]
+        assert len(errs) > 300
+        assert max(e[0] for e in errs) < 0.05, (target, max(e[0] for e in errs))
+        assert max(e[1] for e in errs) < 0.1
+        assert last_third[-1]["status"] == "converged"
+        status = [d for _, d in sink.of(f"mav_observer/{sysid}/status")]
+        assert status and list(status[-1]["observers"]) == [target]
+    # nobody else's keys
+    keys = {k for _, k, _ in sink.samples}
+    assert all(k.startswith(("mav_observer/1/", "mav_observer/2/")) for k in keys)
+
+
+def test_router_mode_client_subscriber_queryable_liveliness_and_sigterm(tmp_path: Path) -> None:
+    mav, zp = ports()
+    stop = threading.Event()
+    log = tmp_path / "svc.log"
+    with service(mav, zp, log, "--zenoh-mode", "router") as proc, subscriber(zp, "client") as sink:
+        assert connected(sink)
+        time.sleep(0.3)
+        th, _ = emit(mav, duration_s=600.0, speed=20.0, stop=stop)
+        try:
+            assert wait_for(lambda: sink.of("mav_observer/1/status"), 10.0)
+            assert any(alive for _, k, alive in sink.alive if k == "mav_observer/1/alive")
+            replies = {
+                str(r.ok.key_expr): json.loads(r.ok.payload.to_bytes())
+                for r in sink.session.get("mav_observer/1/**", timeout=3.0)
+                if r.ok is not None
+            }
+            assert set(replies) == {"mav_observer/1/gimbal/estimate", "mav_observer/1/status"}
+            assert replies["mav_observer/1/gimbal/estimate"]["target"] == "gimbal"
+            assert replies["mav_observer/1/status"]["link"]["state"] == "up"
+            # SIGTERM while data flows: a last status, the token goes, exit 0 within 2 s
+            code, took = stop_process(proc)
+            t_stopped = time.monotonic()
+        finally:
+            stop.set()
+            th.join(5)
+        assert code == 0, log.read_text()
+        assert took < 2.0
+        gone = [t for t, k, alive in sink.alive if k == "mav_observer/1/alive" and not alive]
+        assert wait_for(
+            lambda: [t for t, k, a in sink.alive if k == "mav_observer/1/alive" and not a], 2.0
+        ), "the liveliness token did not disappear"
+        gone = [t for t, k, a in sink.alive if k == "mav_observer/1/alive" and not a]
+        assert gone[0] <= t_stopped + 1.0
+        last = sink.of("mav_observer/1/status")[-1][1]
+        assert last["service"]["state"] == "stopping"
+    assert "stopped after" in log.read_text()
+
+
+def test_a_pause_longer_than_the_stale_time_then_estimates_again(tmp_path: Path) -> None:
+    mav, zp = ports()
+    # 40-70 s of the scenario silent: 3 s of wall time at 10x; stale after 1 s
+    with (
+        service(mav, zp, tmp_path / "svc.log", "--stale-after-s", "1") as _,
+        subscriber(zp) as sink,
+    ):
+        assert connected(sink)
+        time.sleep(0.3)
+        th, em = emit(mav, duration_s=100.0, speed=10.0, silent=((40.0, 70.0),))
+        th.join(30)
+        time.sleep(0.5)
+    statuses = [d for _, d in sink.of("mav_observer/1/status")]
+    stale = [i for i, d in enumerate(statuses) if d["link"]["state"] == "stale"]
+    assert stale, [d["link"]["state"] for d in statuses]
+    assert statuses[stale[0]]["observers"]["gimbal"]["status"] == "stale"
+    assert any(d["link"]["state"] == "up" for d in statuses[stale[-1] :])
+    boot0 = em.boot_ms(0.0) / 1000
+    est_t = [d["t_boot_s"] - boot0 for _, d in sink.of("mav_observer/1/gimbal/estimate")]
+    assert any(t < 40.0 for t in est_t) and any(t > 75.0 for t in est_t)
+    assert not any(40.1 < t < 70.0 for t in est_t)
+
+
+def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path) -> None:
+    """SIGTERM a converged service while the vehicle flies on; the restarted one, with the
+    same state file, publishes a converged estimate within 1 s of the data returning (here:
+    of its liveliness token, declared at the first message). The subscriber stays as it is
+    through the restart (a Zenoh peer needs no restart)."""
+    mav, zp = ports()
+    state = tmp_path / "state.json"
+    log = tmp_path / "svc.log"
+    stop = threading.Event()
+    truths = Truths()
+    with subscriber(zp) as sink:
+        with service(mav, zp, log, "--state-file", str(state)) as proc:
+            assert connected(sink)
+            time.sleep(0.3)
+            th, _ = emit(mav, duration_s=400.0, speed=20.0, stop=stop, truths=truths)
+            key = "mav_observer/1/gimbal/estimate"
+            assert wait_for(lambda: any(d["status"] == "converged" for _, d in sink.of(key)), 15)
+            time.sleep(1.0)
+            code, took = stop_process(proc)
+            assert code == 0 and took < 2.0
+        assert state.exists()
+        n_before = len(sink.of(key))
+        t_restart = time.monotonic()
+        try:
+            with service(mav, zp, log, "--state-file", str(state)):
+                assert wait_for(lambda: len(sink.of(key)) > n_before + 20, 15)
+                alive = [
+                    t
+                    for t, k, a in sink.alive
+                    if a and k == "mav_observer/1/alive" and t > t_restart
+                ]
+                after = sink.of(key)[n_before:]
+        finally:
+            stop.set()
+            th.join(5)
+    assert alive, "the restarted service declared no liveliness token"
+    first_conv = next(t for t, d in after if d["status"] == "converged")
+    assert first_conv - alive[0] < 1.0
+    assert after[0][1]["status"] == "converged"  # the very first estimate after the restart
+    d0 = after[0][1]
+    truth = truths.at(1, d0["t_boot_s"])
+    assert truth is not None
+    rel, bias = errors(d0, truth)
+    assert rel < 0.05 and bias < 0.1
+    assert "restored observer 'gimbal' (converged)" in log.read_text()
+
+
+def test_run_exits_with_a_message_on_a_bad_setting() -> None:
+    res = subprocess.run(
+        [sys.executable, "-m", "mav_observer", "run", "--k", "-1"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert res.returncode == 1
+    assert "observer.k_per_s must be > 0" in res.stderr
