@@ -1,0 +1,261 @@
+"""Service latency on loopback: a bearing datagram written to the estimate it produced received.
+
+Run: ``python bench/service_latency.py`` (about two minutes; ``--updates 3000`` for a check).
+
+What is measured: the time from ``sendto()`` of a GIMBAL_DEVICE_ATTITUDE_STATUS datagram to
+the arrival, in a Zenoh subscriber of this process, of the estimate that bearing produced. Both
+ends read ``time.perf_counter()`` in this process (one clock): just before each bearing's
+``sendto()`` (keyed by its ``time_boot_ms``) and first thing in the subscriber's callback; an
+estimate is matched to its bearing by ``round(t_boot_s * 1000)``.
+
+How: the service runs as its own process (``python -m mav_observer run``, ``--estimate-rate-hz
+0`` so that every estimate is published), reading ``udpin:127.0.0.1:PORT`` and listening for
+Zenoh on ``tcp/127.0.0.1:ZPORT``; this process connects to it (no multicast scouting). The
+emitter's orbit scenario (gimbal bearings, 0.5 deg noise) is generated beforehand and sent from
+a plain UDP socket in time order, paced on the real clock, one frame per datagram. Default mix,
+in wall-clock rates: bearings at 100 Hz, LOCAL_POSITION_NED and GLOBAL_POSITION_INT at 100 Hz
+each, ATTITUDE and ATTITUDE_QUATERNION at 200 Hz each, HEARTBEAT, SYSTEM_TIME, SYS_STATUS at
+1 Hz (``--speed S`` generates the scenario at the rates divided by S and sends it S times
+faster: the same wall rates, a faster scenario). The first ``--warmup`` bearings (the
+observer's start, the first publication) are not measured; then ``--updates`` bearings are.
+
+Output: p50, p90, p99, p99.9, max and mean latency (ms) of the measured bearings, how many
+produced no estimate (lost), the sender's own lateness against its schedule, and the service
+process's CPU share over the run. Goal: p99 under 2 ms.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
+from sim import emitter, scenarios  # noqa: E402
+from sim.live import free_port, service_command, stop_process, wait_for_peer  # noqa: E402
+
+GOAL_P99_MS = 2.0
+
+
+def udp_socket_info(port: int) -> tuple[int, int] | None:
+    """``(rx_queue bytes, drops)`` of the UDP socket bound to 127.0.0.1:``port``, or None."""
+    local = f"0100007F:{port:04X}"
+    with open("/proc/net/udp", encoding="ascii") as fh:
+        next(fh)
+        for line in fh:
+            f = line.split()
+            if f[1] == local:
+                return int(f[4].split(":")[1], 16), int(f[12])
+    return None
+
+
+def cpu_ticks(pid: int, tid: int | None = None) -> int:
+    """utime + stime (clock ticks) of process ``pid`` (or of its thread ``tid``)."""
+    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
+    with open(path, encoding="ascii") as fh:
+        fields = fh.read().rpartition(")")[2].split()
+    return int(fields[11]) + int(fields[12])
+
+
+def frames(args: argparse.Namespace) -> tuple[list[tuple[float, bytes, int | None]], int]:
+    """Pre-generated ``(wall offset s, frame, bearing key or None)`` up to the last bearing
+    needed, and the number of bearings."""
+    need = args.warmup + args.updates
+    s = args.speed
+    duration = need / (args.bearing_hz / s) + 1.0
+    em = emitter.Emitter(
+        scenarios.orbit(duration_s=duration),
+        emitter.EmitterConfig(
+            duration_s=duration,
+            bearing="gimbal",
+            bearing_hz=args.bearing_hz / s,
+            position_hz=args.position_hz / s,
+            attitude_hz=args.attitude_hz / s,
+            background_hz=args.background_hz / s,
+            bearing_noise_deg=0.5,
+            seed=args.seed,
+        ),
+    )
+    out: list[tuple[float, bytes, int | None]] = []
+    n = 0
+    for e in em.emissions():
+        key = None if e.truth is None else round(e.truth["t_boot_s"] * 1000)
+        out.append((e.t_emit_s / s, e.frame, key))
+        if key is not None:
+            n += 1
+            if n == need:
+                break
+    return out, n
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    t_gen = time.perf_counter()
+    plan, n_bearings = frames(args)
+    keys = [k for _, _, k in plan if k is not None]
+    if len(set(keys)) != len(keys):
+        raise SystemExit("bearing keys (time_boot_ms) are not unique: lower --bearing-hz")
+    measured = set(keys[args.warmup :])
+    print(
+        f"{len(plan)} frames, {n_bearings} bearings generated in "
+        f"{time.perf_counter() - t_gen:.1f} s; sending for {plan[-1][0]:.1f} s",
+        flush=True,
+    )
+    mav_port = free_port(socket.SOCK_DGRAM)
+    z_port = free_port(socket.SOCK_STREAM)
+    extra = ["--estimate-rate-hz", "0", "--log-level", args.service_log_level]
+    log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - closed below
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    svc = subprocess.Popen(
+        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
+    )
+    session = None
+    sock = None
+    received: list[tuple[float, bytes]] = []
+    sent_at: dict[int, float] = {}
+    lateness: list[float] = []
+    try:
+        session = open_session(session_config(listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]))
+        if not wait_for_peer(session, 20.0):
+            raise RuntimeError("the service did not come up on its Zenoh port")
+        end = time.monotonic() + 20.0
+        while udp_socket_info(mav_port) is None:
+            if time.monotonic() > end or svc.poll() is not None:
+                raise RuntimeError("the service did not bind its MAVLink port")
+            time.sleep(0.02)
+        key_expr = f"mav_observer/1/{emitter.TARGET_OF['gimbal']}/estimate"
+        sub = session.declare_subscriber(
+            key_expr, lambda s: received.append((time.perf_counter(), s.payload.to_bytes()))
+        )
+        time.sleep(0.5)  # the subscription reaches the service's peer
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.bind(("127.0.0.1", 0))
+        addr = ("127.0.0.1", mav_port)
+        perf = time.perf_counter
+        sleep = time.sleep
+        cpu0, wall0 = cpu_ticks(svc.pid), time.monotonic()
+        t0 = perf() + 0.01
+        for t_rel, frame, key in plan:
+            due = t0 + t_rel
+            d = due - perf()
+            if d > 0:
+                sleep(d)
+            if key is not None:
+                now = perf()
+                sent_at[key] = now
+                lateness.append(now - due)
+            sock.sendto(frame, addr)
+        sleep(args.drain_s)
+        cpu1, wall1 = cpu_ticks(svc.pid), time.monotonic()
+        drops = (udp_socket_info(mav_port) or (0, 0))[1]
+        sub.undeclare()
+        alive = svc.poll() is None
+    finally:
+        if sock is not None:
+            sock.close()
+        if session is not None:
+            session.close()
+        code, _ = stop_process(svc)
+        log.seek(0)
+        service_log = log.read()
+        log.close()
+    lat_ms: dict[int, float] = {}
+    unmatched = 0
+    for t_recv, payload in received:
+        key = round(json.loads(payload)["t_boot_s"] * 1000)
+        t_sent = sent_at.get(key)
+        if t_sent is None:
+            unmatched += 1
+            continue
+        if key in measured and key not in lat_ms:
+            lat_ms[key] = (t_recv - t_sent) * 1000.0
+    lat = np.array(list(lat_ms.values()))
+    late = np.array(lateness) * 1000.0
+    pct = (lambda q: float(np.percentile(lat, q))) if lat.size else (lambda q: float("nan"))
+    result = {
+        "mix_wall_hz": {
+            "GIMBAL_DEVICE_ATTITUDE_STATUS": args.bearing_hz,
+            "LOCAL_POSITION_NED": args.position_hz,
+            "GLOBAL_POSITION_INT": args.position_hz,
+            "ATTITUDE": args.attitude_hz,
+            "ATTITUDE_QUATERNION": args.attitude_hz,
+            "HEARTBEAT+SYSTEM_TIME+SYS_STATUS": 3 * args.speed,
+            "background": args.background_hz,
+        },
+        "speed": args.speed,
+        "frames_sent": len(plan),
+        "bearings_sent": n_bearings,
+        "warmup": args.warmup,
+        "measured": len(measured),
+        "matched": int(lat.size),
+        "lost": len(measured) - int(lat.size),
+        "estimates_received": len(received),
+        "estimates_unmatched": unmatched,
+        "p50_ms": pct(50),
+        "p90_ms": pct(90),
+        "p99_ms": pct(99),
+        "p999_ms": pct(99.9),
+        "max_ms": float(lat.max()) if lat.size else float("nan"),
+        "mean_ms": float(lat.mean()) if lat.size else float("nan"),
+        "sender_late_p99_ms": float(np.percentile(late, 99)) if late.size else float("nan"),
+        "sender_late_max_ms": float(late.max()) if late.size else float("nan"),
+        "service_cpu_pct": 100.0 * (cpu1 - cpu0) / os.sysconf("SC_CLK_TCK") / (wall1 - wall0),
+        "udp_drops": drops,
+        "service_alive_at_end": alive,
+        "service_exit": code,
+        "service_log_lines": service_log.count("\n"),
+    }
+    result["goal_p99_ms"] = GOAL_P99_MS
+    result["goal_met"] = bool(lat.size) and result["p99_ms"] < GOAL_P99_MS
+    if service_log.strip():
+        print("service log (last lines):", *service_log.splitlines()[-10:], sep="\n  ")
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--updates", type=int, default=10_000, help="bearings measured")
+    parser.add_argument("--warmup", type=int, default=200, help="bearings sent first, unmeasured")
+    parser.add_argument("--bearing-hz", type=float, default=100.0, help="wall-clock rate")
+    parser.add_argument("--position-hz", type=float, default=100.0, help="wall-clock rate")
+    parser.add_argument("--attitude-hz", type=float, default=200.0, help="wall-clock rate")
+    parser.add_argument("--background-hz", type=float, default=0.0, help="other messages/s")
+    parser.add_argument("--speed", type=float, default=1.0, help="scenario time / wall time")
+    parser.add_argument("--drain-s", type=float, default=1.0, help="wait after the last send")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--service-log-level", default="WARNING")
+    parser.add_argument("--json", type=Path, help="also write the results as JSON")
+    args = parser.parse_args()
+    r = run(args)
+    print(
+        f"{'measured':>8s} {'lost':>5s} {'p50_ms':>7s} {'p90_ms':>7s} {'p99_ms':>7s} "
+        f"{'p99.9_ms':>8s} {'max_ms':>7s} {'mean_ms':>7s} {'cpu_%':>6s} {'udp_drops':>9s}"
+    )
+    print(
+        f"{r['measured']:8d} {r['lost']:5d} {r['p50_ms']:7.3f} {r['p90_ms']:7.3f} "
+        f"{r['p99_ms']:7.3f} {r['p999_ms']:8.3f} {r['max_ms']:7.3f} {r['mean_ms']:7.3f} "
+        f"{r['service_cpu_pct']:6.1f} {r['udp_drops']:9d}"
+    )
+    print(
+        f"sender lateness p99 {r['sender_late_p99_ms']:.3f} ms, max "
+        f"{r['sender_late_max_ms']:.3f} ms; goal p99 < {GOAL_P99_MS:g} ms: "
+        f"{'met' if r['goal_met'] else 'NOT met'}"
+    )
+    if args.json:
+        args.json.write_text(json.dumps(r, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
