@@ -170,6 +170,14 @@ def test_two_vehicles_gimbal_and_landing_target_converge_on_their_own_keys(
     truths = Truths()
     with service(mav, zp, tmp_path / "svc.log", "--estimate-rate-hz", "0"), subscriber(zp) as sink:
         assert connected(sink)
+        listener = subprocess.Popen(
+            [
+                *(sys.executable, "-m", "mav_observer", "listen", "mav_observer/2/**"),
+                *("--connect", f"tcp/127.0.0.1:{zp}", "--json", "--count", "5", "--duration", "30"),
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         time.sleep(0.3)
         t1, _ = emit(mav, duration_s=150.0, speed=30.0, sysid=1, truths=truths)
         t2, _ = emit(
@@ -178,6 +186,15 @@ def test_two_vehicles_gimbal_and_landing_target_converge_on_their_own_keys(
         t1.join(30)
         t2.join(30)
         time.sleep(0.3)
+        try:
+            listened, _ = listener.communicate(timeout=30)
+        finally:
+            stop_process(listener)
+    # the listen command, as a user would run it: JSON lines of vehicle 2 only
+    rows = [json.loads(x) for x in listened.splitlines()]
+    assert len(rows) == 5 and listener.returncode == 0
+    assert all(r["key"].startswith("mav_observer/2/") for r in rows)
+    assert any(r.get("liveliness") == "alive" for r in rows)
     for sysid, target in ((1, "gimbal"), (2, "landing_target_0")):
         est = [d for _, d in sink.of(f"mav_observer/{sysid}/{target}/estimate")]
         assert len(est) > 1000, (sysid, target, len(est))
