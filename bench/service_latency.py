@@ -42,31 +42,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _proc import cpu_ticks  # noqa: E402
+
+from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
 from sim.live import free_port, service_command, stop_process, wait_for_peer  # noqa: E402
 
 GOAL_P99_MS = 2.0
-
-
-def udp_socket_info(port: int) -> tuple[int, int] | None:
-    """``(rx_queue bytes, drops)`` of the UDP socket bound to 127.0.0.1:``port``, or None."""
-    local = f"0100007F:{port:04X}"
-    with open("/proc/net/udp", encoding="ascii") as fh:
-        next(fh)
-        for line in fh:
-            f = line.split()
-            if f[1] == local:
-                return int(f[4].split(":")[1], 16), int(f[12])
-    return None
-
-
-def cpu_ticks(pid: int, tid: int | None = None) -> int:
-    """utime + stime (clock ticks) of process ``pid`` (or of its thread ``tid``)."""
-    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
-    with open(path, encoding="ascii") as fh:
-        fields = fh.read().rpartition(")")[2].split()
-    return int(fields[11]) + int(fields[12])
 
 
 def frames(args: argparse.Namespace) -> tuple[list[tuple[float, bytes, int | None]], int]:
@@ -130,7 +113,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if not wait_for_peer(session, 20.0):
             raise RuntimeError("the service did not come up on its Zenoh port")
         end = time.monotonic() + 20.0
-        while udp_socket_info(mav_port) is None:
+        while udp_socket_stats(mav_port) is None:
             if time.monotonic() > end or svc.poll() is not None:
                 raise RuntimeError("the service did not bind its MAVLink port")
             time.sleep(0.02)
@@ -158,7 +141,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             sock.sendto(frame, addr)
         sleep(args.drain_s)
         cpu1, wall1 = cpu_ticks(svc.pid), time.monotonic()
-        drops = (udp_socket_info(mav_port) or (0, 0))[1]
+        drops = (udp_socket_stats(mav_port) or (0, 0))[1]
         sub.undeclare()
         alive = svc.poll() is None
     finally:

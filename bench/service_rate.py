@@ -57,6 +57,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _proc import cpu_ticks  # noqa: E402
+
+from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from mav_observer.mavlink.dialect import msg_name  # noqa: E402
 from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
@@ -65,26 +68,6 @@ from sim.live import free_port, service_command, stop_process, wait_for_peer  # 
 MIX_HZ = {"position_hz": 50.0, "bearing_hz": 30.0, "attitude_hz": 20.0, "background_hz": 100.0}
 MAX_LOSS = 0.001
 GOAL_K = 10.0
-
-
-def udp_socket_info(port: int) -> tuple[int, int] | None:
-    """``(rx_queue bytes, drops)`` of the UDP socket bound to 127.0.0.1:``port``, or None."""
-    local = f"0100007F:{port:04X}"
-    with open("/proc/net/udp", encoding="ascii") as fh:
-        next(fh)
-        for line in fh:
-            f = line.split()
-            if f[1] == local:
-                return int(f[4].split(":")[1], 16), int(f[12])
-    return None
-
-
-def cpu_ticks(pid: int, tid: int | None = None) -> int:
-    """utime + stime (clock ticks) of process ``pid`` (or of its thread ``tid``)."""
-    path = f"/proc/{pid}/stat" if tid is None else f"/proc/{pid}/task/{tid}/stat"
-    with open(path, encoding="ascii") as fh:
-        fields = fh.read().rpartition(")")[2].split()
-    return int(fields[11]) + int(fields[12])
 
 
 class Stream:
@@ -140,7 +123,7 @@ def one_k(k: float, stream: Stream, args: argparse.Namespace) -> dict[str, Any]:
         if not wait_for_peer(session, 20.0):
             raise RuntimeError("the service did not come up on its Zenoh port")
         end = time.monotonic() + 20.0
-        while udp_socket_info(mav_port) is None:
+        while udp_socket_stats(mav_port) is None:
             if time.monotonic() > end or svc.poll() is not None:
                 raise RuntimeError("the service did not bind its MAVLink port")
             time.sleep(0.02)
@@ -181,7 +164,7 @@ def one_k(k: float, stream: Stream, args: argparse.Namespace) -> dict[str, Any]:
             elif m >= len(plan) or perf() - stable_since > 2.5:
                 break
             sleep(0.1)
-        drops = (udp_socket_info(mav_port) or (0, 0))[1]
+        drops = (udp_socket_stats(mav_port) or (0, 0))[1]
         alive = svc.poll() is None
         code, _ = stop_process(svc)
         sleep(0.3)  # the final status

@@ -54,7 +54,7 @@ class _Target:
 
     source: str
     status: str = ""
-    last_pub_mono: float = -1e300
+    next_pub_mono: float = -1e300
     last_estimate_mono: float | None = None
     last_record: EstimateRecord | None = None
     estimates: int = 0
@@ -230,8 +230,13 @@ class Service:
         tgt.estimates += 1
         tgt.last_record = rec
         tgt.last_estimate_mono = now
-        if changed or now - tgt.last_pub_mono >= self.min_interval_s:
-            tgt.last_pub_mono = now
+        if changed or now >= tgt.next_pub_mono:
+            # a schedule rather than a minimum gap, so that the average is the configured
+            # rate whatever the bearing rate (no catching up after a quiet spell)
+            nxt = tgt.next_pub_mono + self.min_interval_s
+            if changed or nxt <= now:
+                nxt = now + self.min_interval_s
+            tgt.next_pub_mono = nxt
             tgt.published += 1
             self.pub.estimate(view.sysid, rec.target, rec.to_json())
 
@@ -309,6 +314,7 @@ class Service:
                 "connected": self.reader.connected,
                 "last_message_age_s": round(now - view.last_mono, 3),
                 "link_errors": self.reader.link_errors,
+                "kernel_drops": self.reader.kernel_drops(),
             },
             "rates_hz": rates,
             "messages": sum(view.counts.values()),

@@ -136,3 +136,23 @@ def test_source_strings() -> None:
     assert split_serial("udpin:127.0.0.1:14550") == ("udpin:127.0.0.1:14550", {})
     assert not is_file_source("udpin:127.0.0.1:14550")
     assert not is_file_source("/dev/ttyACM0")
+
+
+def test_a_udp_link_reports_what_the_kernel_dropped() -> None:
+    """Datagrams sent faster than anyone reads them overflow the socket: the reader says so."""
+    port = free_port(socket.SOCK_DGRAM)
+    reader = ConnectionReader(f"udpin:127.0.0.1:{port}", heartbeat_period_s=None)
+    reader.open()
+    try:
+        assert reader.kernel_drops() == 0
+        frame = bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(
+            mavlink.MAVLink(None, 1, 1)))  # fmt: skip
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(200_000):  # about 4 MB of small datagrams, more than the buffer
+                s.sendto(frame, ("127.0.0.1", port))
+        drops = reader.kernel_drops()
+        assert drops is not None and drops > 0
+    finally:
+        reader.close()
+    tcp = ConnectionReader("tcp:127.0.0.1:1")
+    assert tcp.kernel_drops() is None

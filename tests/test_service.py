@@ -59,6 +59,9 @@ class ScriptReader:
     def close(self) -> None:
         self.closed = True
 
+    def kernel_drops(self) -> int | None:
+        return None
+
 
 class FakePublications:
     prefix = "mav_observer"
@@ -115,7 +118,7 @@ def test_estimates_are_rate_limited_but_status_changes_always_go_out() -> None:
     gaps = [b - a for a, b in itertools.pairwise(times)]
     statuses = [e[2]["status"] for e in pubs.estimates]
     changes = sum(1 for a, b in itertools.pairwise(statuses) if a != b)
-    assert len(pubs.estimates) <= 2 * 60 + 2 + changes
+    assert 2 * 60 - 2 <= len(pubs.estimates) <= 2 * 60 + 2 + changes  # 2 Hz on average
     # every gap is at least 0.5 s except where the status changed
     short = [g for g, a, b in zip(gaps, statuses, statuses[1:], strict=False) if g < 0.49]
     assert len(short) <= changes

@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import socket
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -55,6 +56,29 @@ def split_serial(source: str) -> tuple[str, dict[str, Any]]:
         if baud.isdigit():
             return dev, {"baud": int(baud)}
     return source, {}
+
+
+#: Receive buffer asked for on UDP links (the kernel caps it at net.core.rmem_max): a burst or
+#: a pause of the reader of a few tens of ms must not overflow the default ~200 KB.
+UDP_RCVBUF_BYTES = 4 * 1024 * 1024
+
+
+def udp_socket_stats(port: int, host: str = "127.0.0.1") -> tuple[int, int] | None:
+    """``(bytes waiting, datagrams dropped)`` of the IPv4 UDP socket bound to ``host:port``,
+    from Linux's ``/proc/net/udp``; ``None`` if there is no such socket or no such file. The
+    drop count is the kernel's: datagrams lost because the reader did not keep up."""
+    a, b, c, d = (int(x) for x in host.split("."))
+    local = f"{d:02X}{c:02X}{b:02X}{a:02X}:{port:04X}"
+    try:
+        with open("/proc/net/udp", encoding="ascii") as fh:
+            next(fh)
+            for line in fh:
+                f = line.split()
+                if len(f) > 12 and f[1] == local:
+                    return int(f[4].split(":")[1], 16), int(f[12])
+    except (OSError, StopIteration, ValueError):
+        return None
+    return None
 
 
 class ConnectionReader:
@@ -113,6 +137,23 @@ class ConnectionReader:
             **kwargs,
         )
         self._next_heartbeat = 0.0
+        sock = getattr(self._conn, "port", None)
+        if sock is not None and hasattr(sock, "setsockopt") and self.source.startswith("udp"):
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF_BYTES)
+
+    def kernel_drops(self) -> int | None:
+        """Datagrams the kernel dropped on this UDP link's socket because we did not read
+        them in time (Linux, IPv4); ``None`` when unknown (not UDP, not open, not Linux)."""
+        sock = getattr(self._conn, "port", None)
+        if sock is None or not hasattr(sock, "getsockname") or not self.source.startswith("udp"):
+            return None
+        try:
+            host, port = sock.getsockname()[:2]
+        except (OSError, ValueError):
+            return None
+        stats = udp_socket_stats(port, host if host != "0.0.0.0" else "0.0.0.0")
+        return None if stats is None else stats[1]
 
     def _heartbeat(self, now: float) -> None:
         """Send a HEARTBEAT when one is due (``now``: monotonic seconds)."""
