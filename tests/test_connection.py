@@ -156,3 +156,31 @@ def test_a_udp_link_reports_what_the_kernel_dropped() -> None:
         reader.close()
     tcp = ConnectionReader("tcp:127.0.0.1:1")
     assert tcp.kernel_drops() is None
+
+
+def test_a_serial_port_that_is_missing_is_retried_until_it_appears(tmp_path) -> None:
+    """The device is absent at start (unplugged): the reader counts the failure, backs off and
+    reads once the device is there."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    link = tmp_path / "ttyFC"
+    frame = bytes(
+        mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(mavlink.MAVLink(None, 1, 1))
+    )
+    reader = ConnectionReader(f"{link},57600", heartbeat_period_s=None)
+    got = None
+    try:
+        t0 = time.monotonic()
+        assert reader.recv(0.1) is None and reader.link_errors == 1  # no device yet
+        link.symlink_to(os.ttyname(slave))
+        while got is None and time.monotonic() - t0 < 10.0:
+            os.write(master, frame)
+            got = reader.recv(0.1)
+        took = time.monotonic() - t0
+    finally:
+        reader.close()
+        os.close(master)
+        os.close(slave)
+    assert got is not None and got[1].get_type() == "HEARTBEAT"
+    assert reader.link_errors == 1
+    assert 0.4 <= took < 3.0  # the first back-off is 0.5 s

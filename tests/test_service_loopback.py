@@ -6,6 +6,7 @@ from __future__ import annotations
 import bisect
 import json
 import math
+import signal
 import socket
 import subprocess
 import sys
@@ -255,7 +256,7 @@ def test_a_pause_longer_than_the_stale_time_then_estimates_again(tmp_path: Path)
     mav, zp = ports()
     # 40-70 s of the scenario silent: 3 s of wall time at 10x; stale after 1 s
     with (
-        service(mav, zp, tmp_path / "svc.log", "--stale-after-s", "1") as _,
+        service(mav, zp, tmp_path / "svc.log", "--stale-after-s", "1") as proc,
         subscriber(zp) as sink,
     ):
         assert connected(sink)
@@ -263,6 +264,9 @@ def test_a_pause_longer_than_the_stale_time_then_estimates_again(tmp_path: Path)
         th, em = emit(mav, duration_s=100.0, speed=10.0, silent=((40.0, 70.0),))
         th.join(30)
         time.sleep(0.5)
+        t_int = time.monotonic()
+        proc.send_signal(signal.SIGINT)  # Ctrl-C stops it as cleanly as SIGTERM
+        assert proc.wait(5) == 0 and time.monotonic() - t_int < 2.0
     statuses = [d for _, d in sink.of("mav_observer/1/status")]
     stale = [i for i, d in enumerate(statuses) if d["link"]["state"] == "stale"]
     assert stale, [d["link"]["state"] for d in statuses]
