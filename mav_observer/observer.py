@@ -335,6 +335,11 @@ class BiasObserver:
         return self._estimate
 
     @property
+    def a_mps(self) -> list[float]:
+        """``ahat`` of the committed state (m/s), a copy."""
+        return list(self._state.ahat)
+
+    @property
     def status(self) -> Status:
         """The status of the latest estimate (``stale`` before any)."""
         return self._memory.status

@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 JSON = zenoh.Encoding.APPLICATION_JSON
+#: How a peer retries its connect endpoints (Zenoh's default starts at 1 s and grows to 4 s):
+#: a subscriber finds a restarted service, or the service a restarted router, within 0.1-2 s.
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 2000, "period_increase_factor": 2}
 
 
 def session_config(
@@ -46,7 +49,8 @@ def session_config(
 
     Without ``config_file``: ``mode`` (default peer), listening on ``listen`` (default
     ``default_listen``; nothing for a client), connecting to ``connect`` (default none),
-    multicast scouting off. With ``config_file`` (JSON5): the file, with the same defaults
+    multicast scouting off, connect endpoints retried from every 0.1 s up to every 2 s
+    (:data:`CONNECT_RETRY`). With ``config_file`` (JSON5): the file, with the same defaults
     for what it leaves unset, and ``mode``/``listen``/``connect`` overriding it when given.
     Raises :class:`ConfigError` naming the file or the value Zenoh refused.
     """
@@ -69,6 +73,8 @@ def session_config(
         _insert(conf, "connect/endpoints", list(connect))
     if json.loads(conf.get_json("scouting/multicast/enabled") or "null") is None:
         _insert(conf, "scouting/multicast/enabled", False)
+    if json.loads(conf.get_json("connect/retry") or "null") is None:
+        _insert(conf, "connect/retry", CONNECT_RETRY)
     return conf
 
 

@@ -316,7 +316,8 @@ def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path) 
     assert alive, "the restarted service declared no liveliness token"
     first_conv = next(t for t, d in after if d["status"] == "converged")
     assert first_conv - alive[0] < 1.0
-    assert after[0][1]["status"] == "converged"  # the very first estimate after the restart
+    # the very first estimates after the restart are converged, and stay so
+    assert all(d["status"] == "converged" for _, d in after[:20])
     d0 = after[0][1]
     truth = truths.at(1, d0["t_boot_s"])
     assert truth is not None

@@ -199,7 +199,7 @@ def test_exported_observers_resume_where_the_vehicle_is_now() -> None:
     assert tr2.events["restored"] == 1
     first = recs[0]
     truth = em.vehicle.state(first.t_boot_s - em.boot_ms(0.0) / 1000).rel_pos_ned_m
-    assert math.dist(first.estimate.x_m.tolist(), truth.tolist()) < 0.5
+    assert math.dist(first.estimate.x_m.tolist(), truth.tolist()) < 0.15  # of 18 m
     assert str(first.estimate.status) == "converged"
 
 

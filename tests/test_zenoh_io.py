@@ -25,6 +25,7 @@ def test_the_embedded_default_is_a_loopback_peer_without_multicast() -> None:
     assert get(conf, "listen/endpoints") == ["tcp/127.0.0.1:7447"]
     assert get(conf, "connect/endpoints") == []
     assert get(conf, "scouting/multicast/enabled") is False
+    assert get(conf, "connect/retry")["period_init_ms"] == 100  # type: ignore[index]
 
 
 def test_a_config_file_is_honoured_and_gaps_get_safe_defaults(tmp_path: Path) -> None:

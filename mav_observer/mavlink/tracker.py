@@ -664,9 +664,11 @@ class Tracker:
                 continue
             if e["target"] in veh.observers:
                 continue  # a live observer already took its place
-            # the vehicle's position at the committed time, from the saved position and velocity
+            # the vehicle's position at the committed time, from the saved one: it moves at its
+            # measured velocity less its error, u - ahat (x' = v + a = -(u - a), target static)
             dt = t_c - saved["t_boot_s"]  # type: ignore[operator]
-            p_c = [saved["pos_ned_m"][j] + dt * saved["vel_ned_mps"][j] for j in range(3)]
+            a = obs.a_mps
+            p_c = [saved["pos_ned_m"][j] + dt * (saved["vel_ned_mps"][j] - a[j]) for j in range(3)]
             dx = [p_c[j] - pos[j] for j in range(3)]  # x = target - vehicle: minus its move
             obs.resume(tb, dx, [-vel[0], -vel[1], -vel[2]])
             veh.observers[e["target"]] = (obs, e["source"])
