@@ -1,6 +1,18 @@
-"""What the service benchmarks read about a process from Linux's ``/proc``."""
+"""What the service benchmarks share: reaching the service, reading ``/proc``."""
 
 from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Any
+
+from mav_observer.mavlink.connection import udp_socket_stats
+from mav_observer.zenoh_io import open_session, session_config
+from sim.live import free_port, service_command, wait_for_peer
 
 
 def cpu_ticks(pid: int, tid: int | None = None) -> int:
@@ -18,3 +30,35 @@ def proc_status_kb(pid: int, field: str) -> int:
             if line.startswith(field + ":"):
                 return int(line.split()[1])
     raise KeyError(field)
+
+
+def connect_to_service(svc: subprocess.Popen[Any], mav_port: int, z_port: int) -> Any:
+    """A Zenoh session connected to the service's peer, once its MAVLink port is bound."""
+    session = open_session(session_config(listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]))
+    if not wait_for_peer(session, 20.0):
+        raise RuntimeError("the service did not come up on its Zenoh port")
+    end = time.monotonic() + 20.0
+    while udp_socket_stats(mav_port) is None:
+        if time.monotonic() > end or svc.poll() is not None:
+            raise RuntimeError("the service did not bind its MAVLink port")
+        time.sleep(0.02)
+    return session
+
+
+def start_service(extra: list[str]) -> tuple[subprocess.Popen[Any], int, int, Any]:
+    """The service on free loopback ports, its output to a temporary file: ``(process,
+    MAVLink UDP port, Zenoh TCP port, log file)``. Stop it with ``sim.live.stop_process``."""
+    mav_port = free_port(socket.SOCK_DGRAM)
+    z_port = free_port(socket.SOCK_STREAM)
+    log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - the caller closes it
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    svc = subprocess.Popen(
+        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
+    )
+    return svc, mav_port, z_port, log
+
+
+def print_log_tail(service_log: str, lines: int = 10) -> None:
+    if service_log.strip():
+        print("service log (last lines):", *service_log.splitlines()[-lines:], sep="\n  ")
+        sys.stdout.flush()

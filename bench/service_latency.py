@@ -30,9 +30,7 @@ import argparse
 import json
 import os
 import socket
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -42,12 +40,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import cpu_ticks  # noqa: E402
+from _proc import connect_to_service, cpu_ticks, print_log_tail, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
-from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import free_port, service_command, stop_process, wait_for_peer  # noqa: E402
+from sim.live import stop_process  # noqa: E402
 
 GOAL_P99_MS = 2.0
 
@@ -95,28 +92,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         f"{time.perf_counter() - t_gen:.1f} s; sending for {plan[-1][0]:.1f} s",
         flush=True,
     )
-    mav_port = free_port(socket.SOCK_DGRAM)
-    z_port = free_port(socket.SOCK_STREAM)
     extra = ["--estimate-rate-hz", "0", "--log-level", args.service_log_level]
-    log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - closed below
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    svc = subprocess.Popen(
-        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
-    )
+    svc, mav_port, z_port, log = start_service(extra)
     session = None
     sock = None
     received: list[tuple[float, bytes]] = []
     sent_at: dict[int, float] = {}
     lateness: list[float] = []
     try:
-        session = open_session(session_config(listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]))
-        if not wait_for_peer(session, 20.0):
-            raise RuntimeError("the service did not come up on its Zenoh port")
-        end = time.monotonic() + 20.0
-        while udp_socket_stats(mav_port) is None:
-            if time.monotonic() > end or svc.poll() is not None:
-                raise RuntimeError("the service did not bind its MAVLink port")
-            time.sleep(0.02)
+        session = connect_to_service(svc, mav_port, z_port)
         key_expr = f"mav_observer/1/{emitter.TARGET_OF['gimbal']}/estimate"
         sub = session.declare_subscriber(
             key_expr, lambda s: received.append((time.perf_counter(), s.payload.to_bytes()))
@@ -201,8 +185,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     }
     result["goal_p99_ms"] = GOAL_P99_MS
     result["goal_met"] = bool(lat.size) and result["p99_ms"] < GOAL_P99_MS
-    if service_log.strip():
-        print("service log (last lines):", *service_log.splitlines()[-10:], sep="\n  ")
+    print_log_tail(service_log)
     return result
 
 

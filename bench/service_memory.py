@@ -25,11 +25,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import socket
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -39,12 +36,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import proc_status_kb  # noqa: E402
+from _proc import connect_to_service, print_log_tail, proc_status_kb, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
-from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import free_port, service_command, stop_process, wait_for_peer  # noqa: E402
+from sim.live import stop_process  # noqa: E402
 
 MIX_HZ = {"position_hz": 50.0, "bearing_hz": 30.0, "attitude_hz": 20.0, "background_hz": 100.0}
 GOAL_GROWTH_MB = 5.0
@@ -58,16 +54,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             duration_s=sim_s, bearing="gimbal", bearing_noise_deg=0.5, seed=args.seed, **MIX_HZ
         ),
     )
-    mav_port = free_port(socket.SOCK_DGRAM)
-    z_port = free_port(socket.SOCK_STREAM)
     extra = ["--log-level", args.service_log_level]
     if args.estimate_rate_hz is not None:
         extra += ["--estimate-rate-hz", str(args.estimate_rate_hz)]
-    log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - closed below
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    svc = subprocess.Popen(
-        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
-    )
+    svc, mav_port, z_port, log = start_service(extra)
     session = None
     sock = None
     estimates = [0]
@@ -75,14 +65,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     samples: list[tuple[float, float]] = []  # (s since the first send, RSS MB)
     sent = 0
     try:
-        session = open_session(session_config(listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]))
-        if not wait_for_peer(session, 20.0):
-            raise RuntimeError("the service did not come up on its Zenoh port")
-        end = time.monotonic() + 20.0
-        while udp_socket_stats(mav_port) is None:
-            if time.monotonic() > end or svc.poll() is not None:
-                raise RuntimeError("the service did not bind its MAVLink port")
-            time.sleep(0.02)
+        session = connect_to_service(svc, mav_port, z_port)
 
         def on_estimate(_s: Any) -> None:
             estimates[0] += 1
@@ -173,8 +156,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "goal_growth_mb": GOAL_GROWTH_MB,
     }
     result["goal_met"] = result["growth_mb"] < GOAL_GROWTH_MB
-    if service_log.strip():
-        print("service log (last lines):", *service_log.splitlines()[-10:], sep="\n  ")
+    print_log_tail(service_log)
     return result
 
 

@@ -45,9 +45,7 @@ import argparse
 import json
 import os
 import socket
-import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -57,13 +55,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import cpu_ticks  # noqa: E402
+from _proc import connect_to_service, cpu_ticks, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from mav_observer.mavlink.dialect import msg_name  # noqa: E402
-from mav_observer.zenoh_io import open_session, session_config  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import free_port, service_command, stop_process, wait_for_peer  # noqa: E402
+from sim.live import stop_process  # noqa: E402
 
 MIX_HZ = {"position_hz": 50.0, "bearing_hz": 30.0, "attitude_hz": 20.0, "background_hz": 100.0}
 MAX_LOSS = 0.001
@@ -105,28 +102,15 @@ def _type_of(frame: bytes) -> str:
 
 def one_k(k: float, stream: Stream, args: argparse.Namespace) -> dict[str, Any]:
     plan = stream.upto(args.duration_s * k)
-    mav_port = free_port(socket.SOCK_DGRAM)
-    z_port = free_port(socket.SOCK_STREAM)
     extra = ["--estimate-rate-hz", "0", "--log-level", args.service_log_level]
-    log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - closed below
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    svc = subprocess.Popen(
-        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
-    )
+    svc, mav_port, z_port, log = start_service(extra)
     session = None
     sock = None
     received: list[tuple[float, bytes]] = []
     statuses: list[bytes] = []
     sent_at: dict[int, float] = {}
     try:
-        session = open_session(session_config(listen=[], connect=[f"tcp/127.0.0.1:{z_port}"]))
-        if not wait_for_peer(session, 20.0):
-            raise RuntimeError("the service did not come up on its Zenoh port")
-        end = time.monotonic() + 20.0
-        while udp_socket_stats(mav_port) is None:
-            if time.monotonic() > end or svc.poll() is not None:
-                raise RuntimeError("the service did not bind its MAVLink port")
-            time.sleep(0.02)
+        session = connect_to_service(svc, mav_port, z_port)
         subs = [
             session.declare_subscriber(
                 "mav_observer/1/gimbal/estimate",
