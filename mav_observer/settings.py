@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from mav_observer.errors import ConfigError
+from mav_observer.mavlink.connection import URL_PREFIXES
 from mav_observer.mavlink.tracker import SOURCES, TrackerConfig
 from mav_observer.observer import ObserverConfig
 
@@ -108,6 +109,19 @@ def _endpoint(v: object) -> str:
     return s
 
 
+def _mavlink_url(v: object) -> str:
+    s = _string(v)
+    if s.startswith(URL_PREFIXES):
+        parts = s.split(":")
+        port = parts[-1] if len(parts) >= 3 else ""
+        if not port.isdigit() or not 0 < int(port) < 65536 or not parts[1]:
+            raise ValueError(
+                f"must be PREFIX:HOST:PORT with a port in 1..65535, such as "
+                f"'udpin:127.0.0.1:14550', got {v!r}"
+            )
+    return s
+
+
 def _heartbeat(v: object) -> float | str | None:
     if v == "auto" or v is None:
         return v
@@ -128,7 +142,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
     "mavlink": {
         "url": (
             DEFAULT_MAVLINK_URL,
-            _string,
+            _mavlink_url,
             "where the autopilot's telemetry comes from: udpin:, udpout:, tcp:, tcpin:, "
             "DEVICE,BAUD",
         ),

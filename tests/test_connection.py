@@ -184,3 +184,10 @@ def test_a_serial_port_that_is_missing_is_retried_until_it_appears(tmp_path) -> 
     assert got is not None and got[1].get_type() == "HEARTBEAT"
     assert reader.link_errors == 1
     assert 0.4 <= took < 3.0  # the first back-off is 0.5 s
+
+
+def test_a_malformed_address_is_a_config_error_not_a_retry() -> None:
+    reader = ConnectionReader("udpin:127.0.0.1:99999")
+    with pytest.raises(ConfigError, match=r"udpin:127\.0\.0\.1:99999"):
+        reader.recv(0.1)
+    reader.close()

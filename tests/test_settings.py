@@ -50,6 +50,8 @@ def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
         ({"mavlink": {"stale_after_s": 0}}, r"mavlink\.stale_after_s must be > 0"),
         ({"observer": {"static_hold": 1}}, r"observer\.static_hold must be true or false"),
         ({"log": {"level": "LOUD"}}, r"log\.level must be one of"),
+        ({"mavlink": {"url": "udpin:127.0.0.1:99999"}}, r"mavlink\.url must be PREFIX:HOST:PORT"),
+        ({"mavlink": {"url": "tcp:127.0.0.1"}}, r"mavlink\.url must be PREFIX:HOST:PORT"),
     ],
 )
 def test_a_bad_value_is_an_error_naming_the_key(layer: dict, match: str) -> None:

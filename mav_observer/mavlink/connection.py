@@ -129,13 +129,16 @@ class ConnectionReader:
 
     def open(self) -> None:
         dev, kwargs = split_serial(self.source)
-        self._conn = connect(
-            dev,
-            source_system=SOURCE_SYSTEM,
-            source_component=SOURCE_COMPONENT,
-            autoreconnect=True,
-            **kwargs,
-        )
+        try:
+            self._conn = connect(
+                dev,
+                source_system=SOURCE_SYSTEM,
+                source_component=SOURCE_COMPONENT,
+                autoreconnect=True,
+                **kwargs,
+            )
+        except (ValueError, OverflowError) as exc:  # a malformed address: no retry helps
+            raise ConfigError(f"MAVLink source {self.source!r}: {exc}") from None
         self._next_heartbeat = 0.0
         sock = getattr(self._conn, "port", None)
         if sock is not None and hasattr(sock, "setsockopt") and self.source.startswith("udp"):
