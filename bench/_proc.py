@@ -12,7 +12,7 @@ from typing import Any
 
 from mav_observer.mavlink.connection import udp_socket_stats
 from mav_observer.zenoh_io import open_session, session_config
-from sim.live import free_port, service_command, wait_for_peer
+from sim.live import free_port, service_command, stop_process, wait_for_peer
 
 
 def cpu_ticks(pid: int, tid: int | None = None) -> int:
@@ -62,3 +62,16 @@ def print_log_tail(service_log: str, lines: int = 10) -> None:
     if service_log.strip():
         print("service log (last lines):", *service_log.splitlines()[-lines:], sep="\n  ")
         sys.stdout.flush()
+
+
+def finish(svc: subprocess.Popen[Any], log: Any, *closables: Any) -> tuple[int, str]:
+    """Close the sockets and sessions given (``None`` skipped), stop the service (SIGTERM; a
+    no-op if it already ended) and read its log: ``(exit code, log text)``."""
+    for obj in closables:
+        if obj is not None:
+            obj.close()
+    code, _ = stop_process(svc)
+    log.seek(0)
+    text = log.read()
+    log.close()
+    return code, text

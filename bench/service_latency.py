@@ -40,11 +40,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import connect_to_service, cpu_ticks, print_log_tail, start_service  # noqa: E402
+from _proc import connect_to_service, cpu_ticks, finish, print_log_tail, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import stop_process  # noqa: E402
 
 GOAL_P99_MS = 2.0
 
@@ -129,14 +128,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         sub.undeclare()
         alive = svc.poll() is None
     finally:
-        if sock is not None:
-            sock.close()
-        if session is not None:
-            session.close()
-        code, _ = stop_process(svc)
-        log.seek(0)
-        service_log = log.read()
-        log.close()
+        code, service_log = finish(svc, log, sock, session)
     lat_ms: dict[int, float] = {}
     unmatched = 0
     for t_recv, payload in received:

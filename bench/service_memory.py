@@ -36,11 +36,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import connect_to_service, print_log_tail, proc_status_kb, start_service  # noqa: E402
+from _proc import connect_to_service, finish, print_log_tail, proc_status_kb, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import stop_process  # noqa: E402
 
 MIX_HZ = {"position_hz": 50.0, "bearing_hz": 30.0, "attitude_hz": 20.0, "background_hz": 100.0}
 GOAL_GROWTH_MB = 5.0
@@ -117,14 +116,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         for s in subs:
             s.undeclare()
     finally:
-        if sock is not None:
-            sock.close()
-        if session is not None:
-            session.close()
-        code, _ = stop_process(svc)
-        log.seek(0)
-        service_log = log.read()
-        log.close()
+        code, service_log = finish(svc, log, sock, session)
     docs = [json.loads(s) for s in statuses]
     counted = max((d.get("messages", 0) for d in docs), default=0)
     rss = np.array([m for _, m in samples])

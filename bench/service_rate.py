@@ -55,7 +55,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import connect_to_service, cpu_ticks, start_service  # noqa: E402
+from _proc import connect_to_service, cpu_ticks, finish, start_service  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from mav_observer.mavlink.dialect import msg_name  # noqa: E402
@@ -155,15 +155,7 @@ def one_k(k: float, stream: Stream, args: argparse.Namespace) -> dict[str, Any]:
         for s in subs:
             s.undeclare()
     finally:
-        if sock is not None:
-            sock.close()
-        if session is not None:
-            session.close()
-        if svc.poll() is None:
-            code, _ = stop_process(svc)
-        log.seek(0)
-        service_log = log.read()
-        log.close()
+        code, service_log = finish(svc, log, sock, session)
     send_wall = t_end - wall0
     docs = [json.loads(s) for s in statuses]
     messages = max((d.get("messages", 0) for d in docs), default=0)

@@ -66,7 +66,6 @@ class _VehicleView:
     """The service's bookkeeping for one vehicle: link state, counts, targets."""
 
     sysid: int
-    first_mono: float
     last_mono: float
     state: str = UP
     counts: Counter[str] = field(default_factory=Counter)
@@ -101,7 +100,6 @@ class Service:
         self.poll_s = poll_s
         self.tick_s = tick_s
         self.tracker = Tracker(settings.tracker_config())
-        self.tracker.restore_max_gap_s = float(settings["state"]["max_gap_s"])
         z = settings["zenoh"]
         rate = float(z["estimate_max_rate_hz"])
         self.min_interval_s = 0.0 if rate <= 0.0 else 1.0 / rate
@@ -115,6 +113,7 @@ class Service:
         self.messages = 0
         self.state_errors = 0
         self._stop = threading.Event()
+        self._shut = False
         self._start_mono = monotonic()
         self._next_tick = 0.0
         self._next_save = self._start_mono + self.save_period_s
@@ -135,10 +134,6 @@ class Service:
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
         self._stop.set()
-
-    @property
-    def stopping(self) -> bool:
-        return self._stop.is_set()
 
     def run(self, *, duration_s: float | None = None) -> None:
         """Run until :meth:`stop` (or for ``duration_s``), then shut down cleanly."""
@@ -163,7 +158,7 @@ class Service:
     def shutdown(self) -> None:
         """Publish a last status for every vehicle, save the state, close the link and the
         publications (the liveliness tokens go). Idempotent."""
-        if getattr(self, "_shut", False):
+        if self._shut:
             return
         self._shut = True
         now = self.monotonic()
@@ -205,7 +200,7 @@ class Service:
             self._on_estimate(view, rec, now)
 
     def _new_vehicle(self, sysid: int, now: float) -> _VehicleView:
-        view = self.vehicles[sysid] = _VehicleView(sysid, now, now, status_mono=now)
+        view = self.vehicles[sysid] = _VehicleView(sysid, now, status_mono=now)
         self.pub.vehicle(sysid)
         log.info("vehicle %d: first data, publishing under %s/%d/", sysid, self.pub.prefix, sysid)
         return view

@@ -353,6 +353,7 @@ class Settings:
                 camera_vfov_deg=t["camera_vfov_deg"],
                 max_attitude_age_s=t["max_attitude_age_s"],
                 sysids=tuple(t["sysids"]) or None,
+                restore_max_gap_s=self.values["state"]["max_gap_s"],
                 observer=self.observer_config(),
             )
         except ConfigError as exc:

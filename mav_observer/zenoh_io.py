@@ -134,8 +134,6 @@ class Publications:
         self._vehicles: dict[int, tuple[Any, Any]] = {}  # sysid -> (token, queryable)
         self._latest: dict[str, str] = {}
         self._lock = threading.Lock()
-        self.published = 0
-        self.queries = 0
 
     # -- keys ---------------------------------------------------------------------------
     def estimate_key(self, sysid: int, target: str) -> str:
@@ -165,7 +163,6 @@ class Publications:
         with self._lock:
             self._latest[key] = payload
         pub.put(payload)
-        self.published += 1
 
     def estimate(self, sysid: int, target: str, payload: str) -> None:
         self._put(self.estimate_key(sysid, target), payload)
@@ -178,7 +175,6 @@ class Publications:
             return dict(self._latest)
 
     def _on_query(self, query: zenoh.Query) -> None:
-        self.queries += 1
         asked = query.key_expr
         for key, payload in self.latest().items():
             if asked.intersects(zenoh.KeyExpr(key)):

@@ -210,8 +210,7 @@ def test_saved_observers_are_dropped_after_a_reboot_or_a_long_gap() -> None:
     tr2.restore(saved)
     tr2.handle(T0_UNIX, lpn(5_000))  # the autopilot clock is far behind: it rebooted
     assert tr2.events["restore_discarded"] == 1 and tr2.observer(1, "gimbal") is None
-    tr3 = Tracker()
-    tr3.restore_max_gap_s = 10.0
+    tr3 = Tracker(TrackerConfig(restore_max_gap_s=10.0))
     tr3.restore(saved)
     tr3.handle(T0_UNIX, lpn(em.boot_ms(130.0)))
     assert tr3.events["restore_discarded"] == 1

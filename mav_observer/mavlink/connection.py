@@ -140,22 +140,29 @@ class ConnectionReader:
         except (ValueError, OverflowError) as exc:  # a malformed address: no retry helps
             raise ConfigError(f"MAVLink source {self.source!r}: {exc}") from None
         self._next_heartbeat = 0.0
-        sock = getattr(self._conn, "port", None)
-        if sock is not None and hasattr(sock, "setsockopt") and self.source.startswith("udp"):
+        sock = self._udp_socket()
+        if sock is not None:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF_BYTES)
+
+    def _udp_socket(self) -> socket.socket | None:
+        """The socket of an open UDP link (pymavlink keeps it as ``port``), else ``None``."""
+        sock = getattr(self._conn, "port", None)
+        if self.source.startswith("udp") and isinstance(sock, socket.socket):
+            return sock
+        return None
 
     def kernel_drops(self) -> int | None:
         """Datagrams the kernel dropped on this UDP link's socket because we did not read
         them in time (Linux, IPv4); ``None`` when unknown (not UDP, not open, not Linux)."""
-        sock = getattr(self._conn, "port", None)
-        if sock is None or not hasattr(sock, "getsockname") or not self.source.startswith("udp"):
+        sock = self._udp_socket()
+        if sock is None:
             return None
         try:
             host, port = sock.getsockname()[:2]
         except (OSError, ValueError):
             return None
-        stats = udp_socket_stats(port, host if host != "0.0.0.0" else "0.0.0.0")
+        stats = udp_socket_stats(port, host)
         return None if stats is None else stats[1]
 
     def _heartbeat(self, now: float) -> None:
@@ -184,12 +191,16 @@ class ConnectionReader:
                 conn.close()
 
     def _drop_link(self, exc: OSError) -> None:
+        """Count and log a failure, close the link, and schedule the next try (back-off
+        0.5 s doubling to 8 s; reset by the next message)."""
         self.link_errors += 1
         if self.link_errors == 1 or self.link_errors % 100 == 0:
             log.warning(
                 "MAVLink link %s failed (%d so far): %s", self.source, self.link_errors, exc
             )
         self._close_link()
+        self._retry_at = time.monotonic() + self._backoff
+        self._backoff = min(8.0, 2 * self._backoff)
 
     @property
     def connected(self) -> bool:
@@ -213,15 +224,12 @@ class ConnectionReader:
                 self.open()
             except OSError as exc:
                 self._drop_link(exc)
-                self._retry_at, self._backoff = now + self._backoff, min(8.0, 2 * self._backoff)
                 return None
         try:
             self._heartbeat(now)
             msg = self._conn.recv_match(blocking=True, timeout=timeout)
         except OSError as exc:
             self._drop_link(exc)
-            self._retry_at = time.monotonic() + self._backoff
-            self._backoff = min(8.0, 2 * self._backoff)
             return None
         if msg is None:
             return None

@@ -67,6 +67,8 @@ class TrackerConfig:
     * ``max_camera_attitude_age_s``: same for pairing a tracked point with the gimbal or mount
       attitude.
     * ``sysids``: only these vehicles (``None``: all).
+    * ``restore_max_gap_s``: a saved observer older than this (vehicle time) is not restored
+      (:meth:`Tracker.restore`).
     * ``observer``: settings of every observer (n must be 3).
     """
 
@@ -80,6 +82,7 @@ class TrackerConfig:
     max_attitude_age_s: float = 0.5
     max_camera_attitude_age_s: float = 0.5
     sysids: tuple[int, ...] | None = None
+    restore_max_gap_s: float = 600.0
     observer: ObserverConfig = field(default_factory=ObserverConfig)
 
     def __post_init__(self) -> None:
@@ -105,7 +108,7 @@ class TrackerConfig:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, (int, float)) and 0.0 < v < 180.0):
                 raise ConfigError(f"{name} must be in (0, 180) degrees, got {v!r}")
-        for name in ("max_attitude_age_s", "max_camera_attitude_age_s"):
+        for name in ("max_attitude_age_s", "max_camera_attitude_age_s", "restore_max_gap_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
                 raise ConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -214,7 +217,6 @@ class Tracker:
         self._warned: Counter[str] = Counter()  # log rate limiting
         #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
         self._pending: dict[int, list[dict[str, Any]]] = {}
-        self.restore_max_gap_s = 600.0
         self._handlers: dict[str, Callable[[_Vehicle, float, Any, list[EstimateRecord]], None]] = {
             "LOCAL_POSITION_NED": self._on_local_position,
             "ATTITUDE": self._on_attitude,
@@ -614,7 +616,7 @@ class Tracker:
         it was in the local frame (a moving target resumes off by its own displacement, which
         the observer then corrects). It is discarded, with a warning, if the autopilot's
         clock went back (a reboot: the local frame may have moved) or more than
-        :attr:`restore_max_gap_s` of vehicle time passed. Raises :class:`StateError` naming
+        ``config.restore_max_gap_s`` of vehicle time passed. Raises :class:`StateError` naming
         the bad entry; nothing is taken then."""
         checked: dict[int, list[dict[str, Any]]] = {}
         for i, e in enumerate(entries):
@@ -655,7 +657,7 @@ class Tracker:
             saved = e["vehicle"]
             t_c = obs.committed_t_s
             gap = tb - t_c  # type: ignore[operator]
-            if gap < 0.0 or gap > self.restore_max_gap_s:
+            if gap < 0.0 or gap > self.config.restore_max_gap_s:
                 why = "autopilot clock went back" if gap < 0.0 else f"{gap:.0f} s old"
                 log.warning(
                     "vehicle %d: saved observer %r discarded (%s)", veh.sysid, e["target"], why
