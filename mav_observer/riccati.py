@@ -1,0 +1,345 @@
+"""The Riccati estimator: a Kalman filter on ``s = [x, a]`` with bearing updates (pure).
+
+Model (the paper's, see ``docs/observer.md``): ``x' = v + a``, ``a' = 0`` (plus optional
+random walks), bearing ``y = x / |x|`` measured with isotropic angular noise of standard
+deviation ``sigma`` (rad) in each direction orthogonal to it.
+
+Every function works on arrays with any leading batch shape: ``x``, ``a`` are ``(..., n)``,
+the covariance ``p`` is ``(..., 2n, 2n)`` ordered ``[x, a]``. One call with batch shape
+``()`` is one observer; ``bench/accuracy`` runs a thousand at once through the same code.
+
+Two forms of the bearing update, both ``s += K z`` with ``K = P H^T (H P H^T + R)^-1``
+on the ``n - 1`` tangent directions ``E`` (orthonormal, orthogonal to a unit vector ``d``):
+
+* **acquisition** (the Riccati observer of Hamel and Samson, a pseudo-linear Kalman filter):
+  ``d`` is the *measured* bearing, the output is ``E^T x = 0`` (exact without noise) scaled by
+  a weight range ``r_w``: ``H = [E^T / r_w, 0]``, ``z = -H s``. The error dynamics are
+  linear and independent of the estimate, so it converges from any initial state under
+  persistent excitation; but ``E`` is correlated with the noise, which biases the range
+  short by a few ``sigma^2``.
+* **tracking** (an extended Kalman filter): ``d`` is the *estimated* bearing ``x / |x|``,
+  ``H = [E^T / |x|, 0]``, ``z = E^T y`` (the sines of the bearing error). No correlation,
+  no bias, and efficient near the truth; local only, hence the acquisition stage first and
+  the innovation guard of :class:`~mav_observer.observer.BiasObserver`.
+
+No I/O, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def tangent_basis(d: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the plane orthogonal to the unit vectors ``d`` (..., n): shape
+    (..., n, n - 1), from the Householder reflection that maps ``e_0`` to ``-sign(d_0) d``
+    (its other columns are orthonormal and orthogonal to ``d``)."""
+    n = d.shape[-1]
+    s = np.where(d[..., 0] >= 0.0, 1.0, -1.0)
+    u = d.copy()
+    u[..., 0] += s
+    # |u|^2 = 2 (1 + |d_0|) >= 2
+    beta = 2.0 / np.sum(u * u, axis=-1)
+    h = np.eye(n) - beta[..., None, None] * u[..., :, None] * u[..., None, :]
+    return h[..., :, 1:]
+
+
+def predict(
+    x: np.ndarray,
+    a: np.ndarray,
+    p: np.ndarray,
+    dx_m: np.ndarray,
+    h_s: float | np.ndarray,
+    q_x: float | np.ndarray,
+    q_a: float | np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Propagate over ``h_s`` seconds: ``x += dx_m + h a`` (``dx_m`` = the integral of ``v``
+    over the step, m), ``a`` unchanged, ``P = F P F^T + Q`` with ``F = [[I, h I], [0, I]]``.
+
+    ``q_x`` (m^2/s) and ``q_a`` (m^2/s^3) are the intensities of white noise on ``x'`` (from
+    the velocity's noise) and on ``a'`` (a random walk of the bias). Exact for a constant
+    ``a``; new arrays are returned.
+    """
+    h = np.asarray(h_s, dtype=float)
+    hb = h[..., None]
+    n = x.shape[-1]
+    x2 = x + dx_m + hb * a
+    # F P F^T by blocks: P = [[A, B], [B^T, C]]
+    pa = p[..., :n, :n]
+    pb = p[..., :n, n:]
+    pc = p[..., n:, n:]
+    hh = h[..., None, None]
+    pbh = pb + hh * pc
+    p2 = np.empty_like(p)
+    p2[..., :n, :n] = pa + hh * (pb + np.swapaxes(pb, -1, -2)) + hh * hh * pc
+    p2[..., :n, n:] = pbh
+    p2[..., n:, :n] = np.swapaxes(pbh, -1, -2)
+    p2[..., n:, n:] = pc
+    qx = np.asarray(q_x, dtype=float)[..., None, None]
+    qa = np.asarray(q_a, dtype=float)[..., None, None]
+    eye = np.eye(n)
+    p2[..., :n, :n] += (qx * hh + qa * hh**3 / 3.0) * eye
+    p2[..., :n, n:] += qa * hh**2 / 2.0 * eye
+    p2[..., n:, :n] += qa * hh**2 / 2.0 * eye
+    p2[..., n:, n:] += qa * hh * eye
+    return x2, a, p2
+
+
+def update(
+    x: np.ndarray,
+    a: np.ndarray,
+    p: np.ndarray,
+    y: np.ndarray,
+    sigma_rad: float | np.ndarray,
+    tracking: bool | np.ndarray,
+    r_min_m: float,
+    r_max_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One bearing update; returns ``(x, a, P, nis, log det S)``.
+
+    ``y`` (..., n) is the measured unit bearing, ``sigma_rad`` its noise per tangent
+    direction, ``tracking`` selects the form (see the module docstring; per batch element).
+    The acquisition weight range is ``|x|`` clipped to ``[r_min_m, r_max_m]``. ``nis`` is the
+    normalised innovation squared ``z^T S^-1 z`` (expected value ``n - 1`` when consistent),
+    ``log det S`` with it gives the update's likelihood. The covariance is ``P - K S K^T``,
+    symmetrised.
+    """
+    n = x.shape[-1]
+    trk = np.asarray(tracking, dtype=bool)
+    r = np.sqrt(np.sum(x * x, axis=-1))
+    safe_r = np.maximum(r, 1e-12)
+    yhat = x / safe_r[..., None]
+    ok = r > 1e-9
+    d = np.where((trk & ok)[..., None], yhat, y)
+    e = tangent_basis(d)  # (..., n, n-1)
+    et = np.swapaxes(e, -1, -2)  # (..., n-1, n)
+    r_w = np.where(trk & ok, safe_r, np.clip(r, r_min_m, r_max_m))
+    hx = et / r_w[..., None, None]  # H = [hx, 0]
+    z_trk = np.einsum("...ij,...j->...i", et, y)
+    z_acq = -np.einsum("...ij,...j->...i", hx, x)
+    z = np.where((trk & ok)[..., None], z_trk, z_acq)
+    # P H^T = P[:, :n] hx^T
+    pht = np.einsum("...ij,...kj->...ik", p[..., :, :n], hx)  # (..., 2n, n-1)
+    sig2 = np.asarray(sigma_rad, dtype=float) ** 2
+    s = np.einsum("...ij,...jk->...ik", hx, pht[..., :n, :]) + sig2[..., None, None] * np.eye(
+        n - 1
+    )
+    s_inv, logdet = _inv_logdet(s)
+    k = pht @ s_inv  # (..., 2n, n-1)
+    ds = np.einsum("...ij,...j->...i", k, z)
+    nis = np.einsum("...i,...ij,...j->...", z, s_inv, z)
+    # P - K S K^T = P - K (P H^T)^T, symmetrised
+    p2 = p - k @ np.swapaxes(pht, -1, -2)
+    p2 = 0.5 * (p2 + np.swapaxes(p2, -1, -2))
+    return x + ds[..., :n], a + ds[..., n:], p2, nis, logdet
+
+
+def _inv_logdet(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse and log-determinant of symmetric positive definite ``s`` (..., m, m); closed
+    form for m = 1 and 2 (n = 2 and 3), numpy above."""
+    m = s.shape[-1]
+    if m == 1:
+        return 1.0 / s, np.log(s[..., 0, 0])
+    if m == 2:
+        a, b, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        det = a * d - b * b
+        inv = np.empty_like(s)
+        inv[..., 0, 0] = d / det
+        inv[..., 1, 1] = a / det
+        inv[..., 0, 1] = inv[..., 1, 0] = -b / det
+        return inv, np.log(det)
+    return np.linalg.inv(s), np.linalg.slogdet(s)[1]
+
+
+def initial_covariance(
+    y0: np.ndarray, range0_m: float | np.ndarray, range_std_m: float | np.ndarray,
+    bias_std_mps: float | np.ndarray, sigma_rad: float | np.ndarray,
+) -> np.ndarray:
+    """Covariance of the initial state ``x = range0 y0``, ``a = 0``: ``range_std_m`` along the
+    bearing, ``range0 * sigma`` across it, ``bias_std_mps`` on each component of ``a``;
+    shape (..., 2n, 2n)."""
+    n = y0.shape[-1]
+    yy = y0[..., :, None] * y0[..., None, :]
+    rs2 = np.asarray(range_std_m, dtype=float)[..., None, None] ** 2
+    cross = (np.asarray(range0_m, dtype=float) * np.asarray(sigma_rad, dtype=float))[
+        ..., None, None
+    ] ** 2
+    p = np.zeros((*y0.shape[:-1], 2 * n, 2 * n))
+    p[..., :n, :n] = rs2 * yy + cross * (np.eye(n) - yy)
+    p[..., n:, n:] = np.asarray(bias_std_mps, dtype=float)[..., None, None] ** 2 * np.eye(n)
+    return p
+
+
+@dataclass(frozen=True)
+class BankParams:
+    """Settings of :class:`Bank` (see ``docs/tuning.md``).
+
+    * ``sigma_rad``: bearing noise per tangent direction (rad).
+    * ``q_x`` (m^2/s), ``q_a`` (m^2/s^3): process noise intensities (see :func:`predict`).
+    * ``hypotheses``, ``span``: the bank's initial ranges are ``r0 * span**u`` for
+      ``hypotheses`` values of ``u`` evenly spaced in [-1, 1]; each has a standard deviation
+      of ``range_rel_std`` times its range along the bearing.
+    * ``bias_std_mps``: prior standard deviation of each component of ``a``.
+    * ``prune``: a hypothesis whose weight falls below this is dropped.
+    * ``nis_gate``, ``nis_window_s``: a run whose innovations, averaged over the window, exceed
+      ``nis_gate`` times their expected value is re-seeded from its Riccati observer.
+    """
+
+    sigma_rad: float
+    q_x: float = 0.0
+    q_a: float = 0.0
+    hypotheses: int = 7
+    span: float = 16.0
+    range_rel_std: float = 0.4
+    bias_std_mps: float = 5.0
+    prune: float = 1e-4
+    nis_gate: float = 3.0
+    nis_window_s: float = 5.0
+
+
+@dataclass
+class Bank:
+    """State of ``R`` estimators at once (``R = 1`` in the service): a bank of extended Kalman
+    filters per run, flat over runs (``owner`` says whose), plus one Riccati observer per run
+    (the acquisition form with the constant weight range ``r0``), which re-seeds the bank when
+    its innovations stop being consistent. Arrays: filters ``x`` (F, n), ``a`` (F, n), ``p``
+    (F, 2n, 2n), ``logw`` (F,), ``owner`` (F,); runs ``r0`` (R,), pilot ``xp``, ``ap``, ``pp``,
+    ``nis_avg`` (R,), ``age_s`` (R,) since the last seeding, ``reseeds`` (R,)."""
+
+    x: np.ndarray
+    a: np.ndarray
+    p: np.ndarray
+    logw: np.ndarray
+    owner: np.ndarray
+    r0: np.ndarray
+    xp: np.ndarray
+    ap: np.ndarray
+    pp: np.ndarray
+    nis_avg: np.ndarray
+    age_s: np.ndarray
+    reseeds: np.ndarray
+
+    @property
+    def runs(self) -> int:
+        return self.r0.shape[0]
+
+
+def _seed(
+    y: np.ndarray, centre_m: np.ndarray, a0: np.ndarray, prm: BankParams
+) -> tuple[np.ndarray, ...]:
+    """Hypotheses around ``centre_m`` (R,) along ``y`` (R, n) with bias ``a0`` (R, n):
+    flat ``(x, a, p, logw, owner)``."""
+    r_count, n = y.shape
+    u = np.linspace(-1.0, 1.0, prm.hypotheses) if prm.hypotheses > 1 else np.zeros(1)
+    ranges = centre_m[:, None] * prm.span ** u[None, :]  # (R, K)
+    owner = np.repeat(np.arange(r_count), prm.hypotheses)
+    rf = ranges.ravel()
+    yf = y[owner]
+    x = rf[:, None] * yf
+    a = a0[owner].copy()
+    p = initial_covariance(yf, rf, prm.range_rel_std * rf, prm.bias_std_mps, prm.sigma_rad)
+    logw = np.full(rf.shape, -math.log(prm.hypotheses))
+    return x, a, p, logw, owner
+
+
+def bank_start(y0: np.ndarray, r0_m: np.ndarray, prm: BankParams) -> Bank:
+    """Start ``R`` estimators at their first bearings ``y0`` (R, n) with range guesses
+    ``r0_m`` (R,): the bank spans ``r0 / span`` to ``r0 * span``; the Riccati observer starts
+    at ``r0 y0`` with a range standard deviation of ``3 r0``."""
+    r_count, n = y0.shape
+    r0 = np.asarray(r0_m, dtype=float)
+    zeros = np.zeros((r_count, n))
+    x, a, p, logw, owner = _seed(y0, r0, zeros, prm)
+    pp = initial_covariance(y0, r0, 3.0 * r0, prm.bias_std_mps, prm.sigma_rad)
+    return Bank(
+        x, a, p, logw, owner, r0, r0[:, None] * y0, zeros.copy(), pp,
+        np.full(r_count, float(n - 1)), np.zeros(r_count), np.zeros(r_count, dtype=int),
+    )  # fmt: skip
+
+
+def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> None:
+    """Propagate every filter and observer over ``h_s`` s; ``dx_m`` (R, n) is each run's
+    integral of ``v`` over the step (m). In place."""
+    bank.x, bank.a, bank.p = predict(
+        bank.x, bank.a, bank.p, dx_m[bank.owner], h_s, prm.q_x, prm.q_a
+    )
+    bank.xp, bank.ap, bank.pp = predict(bank.xp, bank.ap, bank.pp, dx_m, h_s, prm.q_x, prm.q_a)
+    bank.age_s = bank.age_s + h_s
+
+
+def _per_run_logsumexp(values: np.ndarray, owner: np.ndarray, runs: int) -> np.ndarray:
+    top = np.full(runs, -np.inf)
+    np.maximum.at(top, owner, values)
+    s = np.bincount(owner, weights=np.exp(values - top[owner]), minlength=runs)
+    return top + np.log(s)
+
+
+def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
+    """Apply each run's bearing ``y`` (R, n), the time ``h_s`` (s) after the previous
+    bearing: every filter in tracking form, weights by likelihood, the Riccati observer in
+    acquisition form; then prune, and re-seed runs whose innovations are inconsistent.
+    In place."""
+    runs, n = y.shape
+    yf = y[bank.owner]
+    bank.x, bank.a, bank.p, nis, logdet = update(
+        bank.x, bank.a, bank.p, yf, prm.sigma_rad, True, 0.0, math.inf
+    )
+    bank.xp, bank.ap, bank.pp, _, _ = update(
+        bank.xp, bank.ap, bank.pp, y, prm.sigma_rad, False, bank.r0, bank.r0
+    )
+    w_prior = np.exp(bank.logw)
+    logw = bank.logw - 0.5 * (nis + logdet)
+    bank.logw = logw - _per_run_logsumexp(logw, bank.owner, runs)[bank.owner]
+    mix_nis = np.bincount(bank.owner, weights=w_prior * nis, minlength=runs)
+    alpha = min(1.0, h_s / prm.nis_window_s)
+    bank.nis_avg = bank.nis_avg + alpha * (mix_nis - bank.nis_avg)
+    keep = np.exp(bank.logw) >= prm.prune
+    if not keep.all():
+        _select(bank, keep)
+    bad = (bank.nis_avg > prm.nis_gate * (n - 1)) & (bank.age_s > 2.0 * prm.nis_window_s)
+    if bad.any():
+        _reseed(bank, bad, y, prm)
+
+
+def _select(bank: Bank, keep: np.ndarray) -> None:
+    bank.x, bank.a, bank.p = bank.x[keep], bank.a[keep], bank.p[keep]
+    bank.owner = bank.owner[keep]
+    bank.logw = bank.logw[keep]
+    runs = bank.runs
+    bank.logw = bank.logw - _per_run_logsumexp(bank.logw, bank.owner, runs)[bank.owner]
+
+
+def _reseed(bank: Bank, bad: np.ndarray, y: np.ndarray, prm: BankParams) -> None:
+    """Replace the filters of the runs in ``bad`` by a new bank around the Riccati
+    observer's range (its estimate converges from anywhere)."""
+    runs = np.flatnonzero(bad)
+    rp = np.linalg.norm(bank.xp[runs], axis=-1)
+    centre = np.where(rp > 0.0, rp, bank.r0[runs])
+    x, a, p, logw, owner = _seed(y[runs], centre, bank.ap[runs], prm)
+    keep = ~bad[bank.owner]
+    bank.x = np.concatenate((bank.x[keep], x))
+    bank.a = np.concatenate((bank.a[keep], a))
+    bank.p = np.concatenate((bank.p[keep], p))
+    bank.logw = np.concatenate((bank.logw[keep], logw))
+    bank.owner = np.concatenate((bank.owner[keep], runs[owner]))
+    bank.nis_avg[runs] = float(y.shape[1] - 1)
+    bank.age_s[runs] = 0.0
+    bank.reseeds[runs] += 1
+
+
+def bank_estimate(bank: Bank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each run's estimate ``(x (R, n), a (R, n), P (R, 2n, 2n))``: the mixture's mean and
+    covariance (spread of the hypotheses included)."""
+    runs = bank.runs
+    n = bank.x.shape[-1]
+    w = np.exp(bank.logw)
+    s = np.concatenate((bank.x, bank.a), axis=-1)
+    mean = np.zeros((runs, 2 * n))
+    np.add.at(mean, bank.owner, w[:, None] * s)
+    d = s - mean[bank.owner]
+    cov = np.zeros((runs, 2 * n, 2 * n))
+    np.add.at(cov, bank.owner, w[:, None, None] * (bank.p + d[:, :, None] * d[:, None, :]))
+    return mean[:, :n], mean[:, n:], cov
