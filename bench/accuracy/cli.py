@@ -56,6 +56,9 @@ def parser() -> argparse.ArgumentParser:
         "estimator setting); baselines without a product form are skipped",
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--duration", type=float, default=None, help="s simulated (default: the scenario's)"
+    )
     p.add_argument("--jobs", type=int, default=default_jobs(), help="worker processes")
     p.add_argument(
         "--write-docs",
@@ -84,6 +87,7 @@ def tasks_for(args: argparse.Namespace, cases: list[core.Case], names: list[str]
                     range_factor=args.range_factor,
                     random_init=args.random_init,
                     per_sample=args.per_sample,
+                    duration_s=args.duration,
                 )
             )
     return out

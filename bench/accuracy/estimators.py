@@ -60,8 +60,8 @@ class Riccati:
         self.prm = rc.BankParams(sigma_rad=max(sigma_rad, SIGMA_FLOOR_RAD), q_x=q_x)
 
     def start(self, t0: float, y0: np.ndarray, v0: np.ndarray, r0: np.ndarray) -> None:
+        # seeded at the first bearing, which is not applied again (as in BiasObserver)
         self.bank = rc.bank_start(y0, r0, self.prm)
-        rc.bank_update(self.bank, y0, 0.0, self.prm)
 
     def step(self, t: float, h: float, dx: np.ndarray, v: np.ndarray, y: np.ndarray) -> None:
         rc.bank_predict(self.bank, dx, h, self.prm)

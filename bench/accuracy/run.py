@@ -25,6 +25,8 @@ class Task:
     range_factor: float = 1.0
     random_init: bool = False
     per_sample: bool = False
+    #: Seconds simulated; None: the scenario's duration.
+    duration_s: float | None = None
 
     @property
     def cost(self) -> float:
@@ -50,11 +52,11 @@ class Result:
 
 
 @functools.lru_cache(maxsize=64)
-def bound(case: core.Case) -> np.ndarray | None:
+def bound(case: core.Case, duration_s: float | None = None) -> np.ndarray | None:
     """The position CRLB (T,) of ``case``; None without bearing noise."""
     if case.bearing_deg <= 0.0:
         return None
-    data = core.generate(case, 1)
+    data = core.generate(case, 1, duration_s=duration_s)
     q_x = case.velocity_mps**2 * data.dt
     return core.crlb(data.t, data.x, data.sigma_rad, q_x)
 
@@ -82,6 +84,7 @@ def run_task(task: Task) -> Result:
         seed=task.seed,
         range_factor=task.range_factor,
         random_init=task.random_init,
+        duration_s=task.duration_s,
     )
     try:
         est = estimators.make(
@@ -97,7 +100,7 @@ def run_task(task: Task) -> Result:
         return Result(task, {}, 0.0, np.zeros(0), empty, error=str(exc))
     with np.errstate(all="ignore"):
         rec = run_estimator(est, data)
-    b = bound(task.case)
+    b = bound(task.case, task.duration_s)
     metrics = core.summarise(rec, b)
     step = max(1, round(1.0 / data.dt))
     rel = rec.rel[:, ::step]
