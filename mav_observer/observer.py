@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer import discrete
+from mav_observer import discrete, riccati
 from mav_observer.errors import ConfigError, InvalidSampleError, StateError
 from mav_observer.monitor import ExcitationWindow, MonitorThresholds, StatusMemory, next_status
 from mav_observer.samples import (
@@ -60,6 +60,12 @@ from mav_observer.samples import (
 )
 
 MODES = ("biased", "bias_free")
+#: ``riccati``: the default, a bank of extended Kalman filters on ``[x, a]`` supervised by a
+#: Riccati observer (:mod:`mav_observer.riccati`); ``paper``: the paper's observer, exact.
+ESTIMATORS = ("riccati", "paper")
+#: Range guess (m) of the riccati estimator when ``initial_range_m`` is not set; its bank spans
+#: ``range_span`` times either way.
+DEFAULT_RANGE_GUESS_M = 20.0
 #: Sample times closer than this to an interval end are not made breakpoints, and a
 #: provisional estimate this close to the committed state is a pure prediction (s). With
 #: linear interpolation the inputs are evaluated at each sub-step's midpoint from the samples
@@ -72,7 +78,7 @@ MIN_INTERVAL_S = 0.01
 DIAGNOSTICS_PERIOD_S = 0.5
 INTERPOLATIONS = ("linear", "hold")
 #: Version of the dictionary written by :meth:`BiasObserver.to_dict`.
-STATE_SCHEMA = 1
+STATE_SCHEMA = 2
 
 
 def _positive(name: str, value: object, *, allow_zero: bool = False) -> float:
@@ -91,9 +97,18 @@ class ObserverConfig:
     away with bearings at 5-50 Hz; ``docs/observer.md`` explains each.
 
     * ``n``: dimension (>= 2).
+    * ``estimator``: ``"riccati"`` (default: near the Cramer-Rao bound, with an honest
+      covariance; ``docs/accuracy.md``) or ``"paper"`` (the paper's observer, exact).
+    * ``bearing_noise_deg``, ``velocity_noise_mps``, ``bias_walk_mps_per_sqrt_s``
+      (riccati): standard deviation of the bearing noise per direction, of each velocity
+      component, and the random walk of ``a`` (its standard deviation grows by this per
+      square root of a second; 0 for a constant ``a``).
+    * ``hypotheses``, ``range_span`` (riccati): the filter bank's initial ranges, spread
+      ``range_span`` times either way around the range guess (``initial_range_m``, else
+      :data:`DEFAULT_RANGE_GUESS_M`).
     * ``mode``: ``"biased"`` (the paper's Section 3 theorem: estimates ``x`` and ``a``) or
       ``"bias_free"`` (Lemma 3.1: ``a = 0`` assumed, ``xhat = xh1``).
-    * ``k_per_s``, ``k_star_per_s``: the gains k and k* (1/s). The paper used 0.5 and 5 on a
+    * ``k_per_s``, ``k_star_per_s`` (paper): the gains k and k* (1/s). The paper used 0.5 and 5 on a
       3 m scene; at drone scale those converge slowly or not at all, 0.2 and 0.2 is the
       measured default.
     * ``interpolation``: ``"linear"`` or ``"hold"`` (see the module docstring).
@@ -113,7 +128,13 @@ class ObserverConfig:
     """
 
     n: int = 3
+    estimator: str = "riccati"
     mode: str = "biased"
+    bearing_noise_deg: float = 0.5
+    velocity_noise_mps: float = 0.05
+    bias_walk_mps_per_sqrt_s: float = 0.0
+    hypotheses: int = 7
+    range_span: float = 16.0
     k_per_s: float = 0.2
     k_star_per_s: float = 0.2
     interpolation: str = "linear"
@@ -135,6 +156,20 @@ class ObserverConfig:
     def __post_init__(self) -> None:
         if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < MIN_DIM:
             raise ConfigError(f"n must be an integer >= {MIN_DIM}, got {self.n!r}")
+        if self.estimator not in ESTIMATORS:
+            raise ConfigError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        object.__setattr__(
+            self, "bearing_noise_deg", _positive("bearing_noise_deg", self.bearing_noise_deg)
+        )
+        for name in ("velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
+            object.__setattr__(self, name, _positive(name, getattr(self, name), allow_zero=True))
+        h = self.hypotheses
+        if isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= 31:
+            raise ConfigError(f"hypotheses must be an integer in [1, 31], got {h!r}")
+        span = _positive("range_span", self.range_span)
+        if span < 1.0:
+            raise ConfigError(f"range_span must be >= 1, got {self.range_span!r}")
+        object.__setattr__(self, "range_span", span)
         if self.mode not in MODES:
             raise ConfigError(f"mode must be one of {MODES}, got {self.mode!r}")
         if self.interpolation not in INTERPOLATIONS:
@@ -203,7 +238,32 @@ class ObserverConfig:
     def paper(cls, **overrides: Any) -> ObserverConfig:
         """The paper's observer and Section 4 settings: k = 0.5, k* = 5, xh1 = 0, M = I,
         zs = 0, no static hold (the continuous equations, unchanged)."""
-        return cls(**{"k_per_s": 0.5, "k_star_per_s": 5.0, "static_hold": False, **overrides})
+        return cls(
+            **{
+                "estimator": "paper",
+                "k_per_s": 0.5,
+                "k_star_per_s": 5.0,
+                "static_hold": False,
+                **overrides,
+            }
+        )
+
+    def bank_params(self, velocity_dt_s: float) -> riccati.BankParams:
+        """The riccati estimator's settings; ``velocity_dt_s`` is the velocity's sample
+        interval (s), which turns its noise into a process noise on ``x``."""
+        return riccati.BankParams(
+            sigma_rad=math.radians(self.bearing_noise_deg),
+            q_x=self.velocity_noise_mps**2 * velocity_dt_s,
+            q_a=self.bias_walk_mps_per_sqrt_s**2,
+            hypotheses=self.hypotheses,
+            span=self.range_span,
+            bias_std_mps=0.0 if self.mode == "bias_free" else 5.0,
+        )
+
+    @property
+    def range_guess_m(self) -> float:
+        """The riccati estimator's initial range guess (m)."""
+        return DEFAULT_RANGE_GUESS_M if self.initial_range_m is None else self.initial_range_m
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (tuples become lists)."""
@@ -300,6 +360,7 @@ class BiasObserver:
         self._hold_speed2 = cfg.hold_speed_mps**2
         self._hold_cos = math.cos(math.radians(cfg.hold_innovation_deg))
         self._biased = cfg.mode == "biased"
+        self._kalman = cfg.estimator == "riccati"
         self.reset()
 
     def reset(self) -> None:
@@ -316,6 +377,12 @@ class BiasObserver:
         self._diag: tuple[float, float] | None = None  # t_s, excitation
         self._cond: tuple[float | None, float] | None = None  # committed t_s, cond(M)
         self._xhat_c: list[float] | None = None  # xhat of the committed state
+        # riccati: the filter bank, its estimate (x, a, P) at the committed time, the time of
+        # the latest bearing applied, and the velocity's sample interval (s)
+        self._bank: riccati.Bank | None = None
+        self._kf_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._kf_tb: float | None = None
+        self._vel_dt = 0.05
         self._counts = {"velocity": 0, "bearing": 0}
 
     # -- public properties ----------------------------------------------------------
@@ -337,7 +404,17 @@ class BiasObserver:
     @property
     def a_mps(self) -> list[float]:
         """``ahat`` of the committed state (m/s), a copy."""
+        if self._kalman:
+            return self._kf_state()[1].tolist()
         return list(self._state.ahat)
+
+    @property
+    def covariance(self) -> np.ndarray | None:
+        """Covariance of ``[xhat, ahat]`` at the committed time ((2n, 2n), m and m/s) of the
+        riccati estimator; ``None`` for the paper's observer, which has none."""
+        if not self._kalman:
+            return None
+        return self._kf_state()[2].copy()
 
     @property
     def status(self) -> Status:
@@ -349,20 +426,27 @@ class BiasObserver:
         """Samples accepted per stream."""
         return dict(self._counts)
 
+    def _paper_only(self, name: str) -> None:
+        if self._kalman:
+            raise StateError(f"{name} belongs to the paper's observer, this one is riccati")
+
     @property
     def zs_mps(self) -> np.ndarray:
         """The paper's dual state ``zs`` of the committed state (m/s)."""
+        self._paper_only("zs_mps")
         s = self._state
         return np.array(discrete.zs_from_state(s.ahat, s.xh1, s.m))
 
     @property
     def xh1_m(self) -> np.ndarray:
         """The first filter ``xh1`` of the committed state (m)."""
+        self._paper_only("xh1_m")
         return np.array(self._state.xh1)
 
     @property
     def m_s(self) -> np.ndarray:
         """The matrix ``M`` of the committed state (s)."""
+        self._paper_only("m_s")
         n = self.config.n
         return np.array(self._state.m).reshape(n, n)
 
@@ -388,6 +472,8 @@ class BiasObserver:
                 f"{kind} t_s={t_s} is older than the observer's committed time "
                 f"t_s={self._t_c} (it arrived more than max_{kind}_age_s late)"
             )
+        if kind == "velocity" and buf and t_s > buf[-1][0]:
+            self._vel_dt = min(1.0, t_s - buf[-1][0])
         buf.append((t_s, vec))
         try:
             self._advance(lazy=not refuse_late)
@@ -456,7 +542,14 @@ class BiasObserver:
             return
         t0 = max(self._bearings[0][0], self._velocities[0][0])
         cfg = self.config
-        if cfg.initial_range_m is not None:
+        if self._kalman:
+            y0 = np.array([self._bearings[-1][1]])
+            self._bank = riccati.bank_start(
+                y0, np.array([cfg.range_guess_m]), cfg.bank_params(self._vel_dt)
+            )
+            self._kf_out = None
+            self._kf_tb = self._bearings[-1][0]
+        elif cfg.initial_range_m is not None:
             y0 = self._bearings[-1][1]
             _, m, _ = cfg.initial_state()
             # xhat = M ahat + xh1 with ahat = 0
@@ -510,8 +603,11 @@ class BiasObserver:
         horizon = self._horizon()
         if horizon > self._t_c:
             records: list[_Record] = []
-            new_state = self._integrate(self._state, self._t_c, horizon, records)
-            self._state = new_state
+            if self._kalman:
+                self._bank, self._kf_tb = self._integrate_kf(self._t_c, horizon, records)
+                self._kf_out = None
+            else:
+                self._state = self._integrate(self._state, self._t_c, horizon, records)
             self._t_c = horizon
             for rec in records:
                 if rec[0] == "interval":
@@ -597,8 +693,74 @@ class BiasObserver:
         pts.append(t1)
         return pts
 
+    def _kf_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The riccati estimate ``(x (n,), a (n,), P (2n, 2n))`` at the committed time, or
+        the configured guess before the start (cached between commits)."""
+        if self._kf_out is None:
+            if self._bank is None:
+                n = self.config.n
+                return np.zeros(n), np.zeros(n), np.full((2 * n, 2 * n), np.inf)
+            x, a, p = riccati.bank_estimate(self._bank)
+            self._kf_out = (x[0], a[0], p[0])
+        return self._kf_out
+
+    def _integrate_kf(
+        self, t0: float, t1: float, records: list[_Record]
+    ) -> tuple[riccati.Bank, float | None]:
+        """The riccati estimator from ``t0`` to ``t1``: predict between the sample times
+        (the velocity interpolated as for the paper's observer), update at each bearing
+        sample in ``(t0, t1]``. Works on a copy; returns the new bank and the time of the
+        latest bearing applied. Appends the monitor's records as :meth:`_integrate` does."""
+        cfg = self.config
+        n = cfg.n
+        bank = riccati.copy_bank(self._bank)  # type: ignore[arg-type]
+        prm = cfg.bank_params(self._vel_dt)
+        bearings = {t: y for t, y in self._bearings if t0 < t <= t1}
+        inner = {t for t, _ in self._velocities if t0 < t < t1}
+        inner.update(t for t in bearings if t < t1)
+        age = cfg.max_bearing_age_s
+        inner.update(t + age for t, _ in self._bearings if t0 < t + age < t1)
+        pts = [t0, *sorted(inner), t1]
+        x_before, a_before, _ = self._kf_state()
+        t_b = self._kf_tb
+        vsum = [0.0] * n
+        yy = [0.0] * (n * n)
+        valid = 0.0
+        for a, b in itertools.pairwise(pts):
+            h = b - a
+            if h <= 0.0:
+                continue
+            mid = 0.5 * (a + b)
+            v = self._velocity_at(mid)
+            for j in range(n):
+                vsum[j] += h * v[j]
+            riccati.bank_predict(bank, np.array([v]) * h, h, prm)
+            y_mid = self._bearing_at(mid)
+            if y_mid is not None:
+                valid += h
+                _add_outer(yy, y_mid, h)
+            y = bearings.get(b)
+            if y is not None:
+                gap = b - t_b if t_b is not None else 0.0
+                riccati.bank_update(bank, np.array([y]), gap, prm)
+                t_b = b
+        records.append(("interval", t0, t1, yy if valid > 0.0 else None, valid))
+        x_after, a_after, _ = riccati.bank_estimate(bank)
+        x_list = x_after[0].tolist()
+        records.append(("xhat", x_list))
+        if bearings:
+            dt = t1 - t0
+            dx = [x_list[j] - x_before[j] - vsum[j] - dt * a_before[j] for j in range(n)]
+            da = (a_after[0] - a_before).tolist()
+            records.append(("correction", t1, dx, da))
+        return bank, t_b
+
     def _xhat_committed(self) -> list[float]:
         """``xhat`` of the committed state (cached between commits)."""
+        if self._kalman:
+            if self._xhat_c is None:
+                self._xhat_c = self._kf_state()[0].tolist()
+            return self._xhat_c
         if self._xhat_c is None:
             s = self._state
             self._xhat_c = discrete.estimate_from_state(s.ahat, s.xh1, s.m)
@@ -706,22 +868,32 @@ class BiasObserver:
         started = self._t_c is not None
         state = self._state
         xhat = self._xhat_committed()
+        if self._kalman:
+            _, a_kf, p_kf = self._kf_state()
+            a_now = a_kf.tolist()
+        else:
+            a_now = state.ahat
+        dt = 0.0
         if started and t > self._t_c:  # type: ignore[operator]
             # beyond the committed state: a prediction, xhat' = v + ahat (exact for the
             # linear velocity, never committed). The bearings since are applied when the
             # velocity around them is known, at the next commit.
             dt = t - self._t_c  # type: ignore[operator]
             v = self._velocity_at(self._t_c + 0.5 * dt)  # type: ignore[operator]
-            a = state.ahat
-            xhat = [xhat[j] + dt * (v[j] + a[j]) for j in range(cfg.n)]
+            xhat = [xhat[j] + dt * (v[j] + a_now[j]) for j in range(cfg.n)]
         rng = math.sqrt(discrete.dot(xhat, xhat))
         b_age = t - self._bearings[-1][0] if self._bearings else None
         v_age = t - self._velocities[-1][0] if self._velocities else None
         if self._diag is None or not 0.0 <= t - self._diag[0] < DIAGNOSTICS_PERIOD_S:
             self._diag = (t, self._window.excitation())
         excitation = self._diag[1]
-        if self._cond is None or self._cond[0] != self._t_c:  # cond(M) of the committed state
-            self._cond = (self._t_c, discrete.cond2(self._state.m, cfg.n))
+        if self._cond is None or self._cond[0] != self._t_c:  # of the committed state
+            if self._kalman:  # of the position's covariance (1 before the start)
+                cov_x = p_kf[: cfg.n, : cfg.n]
+                c = float(np.linalg.cond(cov_x)) if self._bank is not None else 1.0
+            else:
+                c = discrete.cond2(self._state.m, cfg.n)
+            self._cond = (self._t_c, c)
         cond = self._cond[1]
         covered = self._window.covered_s()
         corr = self._window.correction_rel(rng)
@@ -738,9 +910,26 @@ class BiasObserver:
         )
         corrected = started and b_age is not None and b_age <= cfg.max_bearing_age_s
         x_out = np.array(xhat)
-        a_out = np.array(state.ahat)
+        a_out = np.array(a_now)
         x_out.setflags(write=False)
         a_out.setflags(write=False)
+        x_std = a_std = range_std = None
+        if self._kalman and started:
+            n = cfg.n
+            pxx = p_kf[:n, :n]
+            if dt > 0.0:  # the prediction's uncertainty grows with the bias's
+                pxx = (
+                    pxx
+                    + dt * (p_kf[:n, n:] + p_kf[n:, :n])
+                    + dt * dt * p_kf[n:, n:]
+                    + (self.config.velocity_noise_mps**2 * self._vel_dt * dt) * np.eye(n)
+                )
+            x_std = np.sqrt(np.maximum(np.diag(pxx), 0.0))
+            a_std = np.sqrt(np.maximum(np.diag(p_kf[n:, n:]), 0.0))
+            u = x_out / rng if rng > 0.0 else x_out
+            range_std = float(math.sqrt(max(float(u @ pxx @ u), 0.0)))
+            x_std.setflags(write=False)
+            a_std.setflags(write=False)
         est = Estimate(
             t_s=t,
             x_m=x_out,
@@ -753,6 +942,9 @@ class BiasObserver:
             bearing_age_s=b_age,
             velocity_age_s=v_age,
             correction_rel=corr,
+            x_std_m=x_std,
+            a_std_mps=a_std,
+            range_std_m=range_std,
         )
         self._estimate = est
         return est
@@ -782,8 +974,14 @@ class BiasObserver:
         if len(dx) != n or len(v) != n:
             raise InvalidSampleError(f"resume: dx_m and v_mps must have dimension n={n}")
         gap = t - self._t_c
-        s = self._state
-        s.xh1 = [s.xh1[j] + dx[j] for j in range(n)]
+        if self._bank is not None:
+            shift = np.array(dx)
+            self._bank.x = self._bank.x + shift
+            self._bank.xp = self._bank.xp + shift
+            self._kf_out = None
+        else:
+            s = self._state
+            s.xh1 = [s.xh1[j] + dx[j] for j in range(n)]
         self._t_c = t
         self._velocities = [(t, v)]
         del self._bearings[:-1]  # the last bearing, now too old to be used, keeps the horizon
@@ -818,6 +1016,15 @@ class BiasObserver:
             "counts": dict(self._counts),
             "estimate": None if self._estimate is None else self._estimate.to_dict(),
             "excitation_cache": None if self._diag is None else list(self._diag),
+            "kalman": None
+            if self._bank is None
+            else {
+                "bank": {
+                    f.name: getattr(self._bank, f.name).tolist() for f in fields(riccati.Bank)
+                },
+                "t_bearing": self._kf_tb,
+                "velocity_dt": self._vel_dt,
+            },
         }
 
     @classmethod
@@ -874,7 +1081,40 @@ class BiasObserver:
                     f"observer state 'excitation_cache' is malformed: {diag!r}"
                 ) from exc
             obs._diag = (t_d, e_d)
+        kal = d.get("kalman")
+        if kal is not None:
+            obs._bank, obs._kf_tb, obs._vel_dt = _bank_from_dict(kal, n)
+        elif obs._kalman and t_c is not None:
+            raise StateError("observer state of a started riccati estimator has no 'kalman'")
         return obs
+
+
+def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
+    """The riccati estimator's saved bank, checked: shapes, finite values, owners."""
+    try:
+        raw = k["bank"]
+        arrays = {f.name: np.array(raw[f.name], dtype=float) for f in fields(riccati.Bank)}
+        t_b = None if k["t_bearing"] is None else float(k["t_bearing"])
+        vel_dt = float(k["velocity_dt"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StateError(f"observer state 'kalman' is malformed: {exc!r}") from exc
+    f_count = arrays["x"].shape[0] if arrays["x"].ndim == 2 else -1
+    shapes = {
+        "x": (f_count, n), "a": (f_count, n), "p": (f_count, 2 * n, 2 * n),
+        "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
+        "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
+    }  # fmt: skip
+    for name, shape in shapes.items():
+        arr = arrays[name]
+        if f_count < 1 or arr.shape != shape or not np.all(np.isfinite(arr)):
+            raise StateError(
+                f"observer state 'kalman.bank.{name}' must be finite with shape {shape}"
+            )
+    if np.any(arrays["owner"] != 0) or not 0.0 < vel_dt <= 1.0:
+        raise StateError("observer state 'kalman' has a foreign owner or a bad velocity_dt")
+    arrays["owner"] = arrays["owner"].astype(int)
+    arrays["reseeds"] = arrays["reseeds"].astype(int)
+    return riccati.Bank(**arrays), t_b, vel_dt
 
 
 def _field(d: dict[str, Any], key: str, typ: type) -> Any:
@@ -924,6 +1164,14 @@ def _field_samples(d: dict[str, Any], key: str, n: int, *, unit: bool) -> list[_
     return out
 
 
+def _optional_array(v: Any) -> np.ndarray | None:
+    if v is None:
+        return None
+    arr = np.array(v, dtype=float)
+    arr.setflags(write=False)
+    return arr
+
+
 def _estimate_from_dict(e: Any) -> Estimate:
     try:
         return Estimate(
@@ -938,6 +1186,9 @@ def _estimate_from_dict(e: Any) -> Estimate:
             bearing_age_s=None if e["bearing_age_s"] is None else float(e["bearing_age_s"]),
             velocity_age_s=None if e["velocity_age_s"] is None else float(e["velocity_age_s"]),
             correction_rel=float(e["correction_rel"]),
+            x_std_m=_optional_array(e.get("x_std_m")),
+            a_std_mps=_optional_array(e.get("a_std_mps")),
+            range_std_m=None if e.get("range_std_m") is None else float(e["range_std_m"]),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise StateError(f"observer state 'estimate' is malformed: {exc!r}") from exc

@@ -14,8 +14,12 @@ Shared by replay (JSON Lines and CSV files) and the service (Zenoh). Fields:
 ``bias_ned_mps``          the paper's ``a``: target velocity minus the vehicle's velocity error, m/s
 ``target_pos_ned_m``      target position in the LOCAL_POSITION_NED frame, m, or null if unknown
 ``vehicle_pos_ned_m``     the vehicle's position used for it, m, or null
+``range_std_m``           1-sigma uncertainty of the range (along the bearing), m, or null
+``rel_pos_std_ned_m``     1-sigma uncertainty of each component of ``rel_pos_ned_m``, m, or null
+``bias_std_ned_mps``      1-sigma uncertainty of each component of ``bias_ned_mps``, m/s, or null
 ``pe``                    persistent-excitation level (monitor's excitation), dimensionless
-``cond_m``                condition number of the observer matrix M
+``cond_m``                condition number of the observer matrix M (paper) or of the position
+                          covariance (riccati)
 ``status``                ``converging``, ``converged``, ``not observable`` or ``stale``
 ``corrected``             false if the estimate is a prediction without a usable bearing
 ========================  =========================================================================
@@ -48,6 +52,13 @@ CSV_COLUMNS = (
     "target_pos_n_m",
     "target_pos_e_m",
     "target_pos_d_m",
+    "range_std_m",
+    "rel_pos_std_n_m",
+    "rel_pos_std_e_m",
+    "rel_pos_std_d_m",
+    "bias_std_n_mps",
+    "bias_std_e_mps",
+    "bias_std_d_mps",
     "pe",
     "cond_m",
     "status",
@@ -92,6 +103,9 @@ class EstimateRecord:
             "vehicle_pos_ned_m": None
             if self.vehicle_pos_ned_m is None
             else list(self.vehicle_pos_ned_m),
+            "range_std_m": e.range_std_m,
+            "rel_pos_std_ned_m": None if e.x_std_m is None else [float(v) for v in e.x_std_m],
+            "bias_std_ned_mps": None if e.a_std_mps is None else [float(v) for v in e.a_std_mps],
             "pe": e.excitation,
             "cond_m": e.cond_m,
             "status": str(e.status),
@@ -109,14 +123,25 @@ class EstimateRecord:
         vp = self.vehicle_pos_ned_m
         head = (float(self.t_unix_s), float(self.t_boot_s), self.sysid, self.target, self.source)
         nums = (x0, x1, x2, float(e.range_m), a0, a1, a2)
-        tail = (float(e.excitation), float(e.cond_m), str(e.status), _BOOL[bool(e.corrected)])
+        stds = (
+            _num_or_null(_P, e.range_std_m),
+            _vec_or_null(_P, e.x_std_m),
+            _vec_or_null(_V, e.a_std_mps),
+        )
+        tail = (
+            *stds,
+            float(e.excitation),
+            float(e.cond_m),
+            str(e.status),
+            _BOOL[bool(e.corrected)],
+        )
         if vp is None:
             template, pos = _JSON_NO_POS, ()
         else:
             v0, v1, v2 = (float(v) for v in vp)
             template, pos = _JSON_POS, (v0 + x0, v1 + x1, v2 + x2, v0, v1, v2)
         vals = (*head, *nums, *pos, *tail)
-        if math.isfinite(sum((*head[:2], *nums, *pos, *tail[:2]))):  # all finite: fast path
+        if math.isfinite(sum((*head[:2], *nums, *pos, *tail[3:5]))):  # all finite: fast path
             return template % vals
         return _format_checked(template, vals)
 
@@ -133,6 +158,9 @@ class EstimateRecord:
             e.range_m,
             *(float(v) for v in e.a_mps),
             *tp,
+            e.range_std_m,
+            *(e.x_std_m if e.x_std_m is not None else (None, None, None)),
+            *(e.a_std_mps if e.a_std_mps is not None else (None, None, None)),
             e.excitation,
             e.cond_m,
             str(e.status),
@@ -145,7 +173,8 @@ _T, _P, _V, _G = "%.6f", "%.4f", "%.5f", "%.6g"
 JSON_RESOLUTION = {
     "t_unix_s, t_boot_s": "1 us (6 decimals)",
     "rel_pos_ned_m, range_m, target_pos_ned_m, vehicle_pos_ned_m": "0.1 mm (4 decimals)",
-    "bias_ned_mps": "0.01 mm/s (5 decimals)",
+    "bias_ned_mps, bias_std_ned_mps": "0.01 mm/s (5 decimals)",
+    "range_std_m, rel_pos_std_ned_m": "0.1 mm (4 decimals)",
     "pe, cond_m": "6 significant digits",
 }
 """How :meth:`EstimateRecord.to_json` rounds each number."""
@@ -154,13 +183,26 @@ _JSON_HEAD = (
     f'"target": "%s", "source": "%s", "rel_pos_ned_m": [{_P}, {_P}, {_P}], "range_m": {_P}, '
     f'"bias_ned_mps": [{_V}, {_V}, {_V}], '
 )
-_JSON_TAIL = f'"pe": {_G}, "cond_m": {_G}, "status": "%s", "corrected": %s}}'
+_JSON_TAIL = (
+    '"range_std_m": %s, "rel_pos_std_ned_m": %s, "bias_std_ned_mps": %s, '
+    f'"pe": {_G}, "cond_m": {_G}, "status": "%s", "corrected": %s}}'
+)
 _JSON_POS = (
     _JSON_HEAD
     + f'"target_pos_ned_m": [{_P}, {_P}, {_P}], "vehicle_pos_ned_m": [{_P}, {_P}, {_P}], '
     + _JSON_TAIL
 )
 _JSON_NO_POS = _JSON_HEAD + '"target_pos_ned_m": null, "vehicle_pos_ned_m": null, ' + _JSON_TAIL
+
+
+def _num_or_null(fmt: str, v: float | None) -> str:
+    return "null" if v is None or not math.isfinite(v) else fmt % v
+
+
+def _vec_or_null(fmt: str, v: Any) -> str:
+    if v is None:
+        return "null"
+    return "[" + ", ".join(_num_or_null(fmt, float(c)) for c in v) + "]"
 
 
 _PLACEHOLDER = re.compile(r"%(?:\.\d+)?[fgds]")

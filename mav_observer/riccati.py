@@ -28,7 +28,7 @@ No I/O, no clock.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -124,9 +124,7 @@ def update(
     # P H^T = P[:, :n] hx^T
     pht = np.einsum("...ij,...kj->...ik", p[..., :, :n], hx)  # (..., 2n, n-1)
     sig2 = np.asarray(sigma_rad, dtype=float) ** 2
-    s = np.einsum("...ij,...jk->...ik", hx, pht[..., :n, :]) + sig2[..., None, None] * np.eye(
-        n - 1
-    )
+    s = np.einsum("...ij,...jk->...ik", hx, pht[..., :n, :]) + sig2[..., None, None] * np.eye(n - 1)
     s_inv, logdet = _inv_logdet(s)
     k = pht @ s_inv  # (..., 2n, n-1)
     ds = np.einsum("...ij,...j->...i", k, z)
@@ -155,8 +153,11 @@ def _inv_logdet(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def initial_covariance(
-    y0: np.ndarray, range0_m: float | np.ndarray, range_std_m: float | np.ndarray,
-    bias_std_mps: float | np.ndarray, sigma_rad: float | np.ndarray,
+    y0: np.ndarray,
+    range0_m: float | np.ndarray,
+    range_std_m: float | np.ndarray,
+    bias_std_mps: float | np.ndarray,
+    sigma_rad: float | np.ndarray,
 ) -> np.ndarray:
     """Covariance of the initial state ``x = range0 y0``, ``a = 0``: ``range_std_m`` along the
     bearing, ``range0 * sigma`` across it, ``bias_std_mps`` on each component of ``a``;
@@ -232,7 +233,7 @@ def _seed(
 ) -> tuple[np.ndarray, ...]:
     """Hypotheses around ``centre_m`` (R,) along ``y`` (R, n) with bias ``a0`` (R, n):
     flat ``(x, a, p, logw, owner)``."""
-    r_count, n = y.shape
+    r_count = y.shape[0]
     u = np.linspace(-1.0, 1.0, prm.hypotheses) if prm.hypotheses > 1 else np.zeros(1)
     ranges = centre_m[:, None] * prm.span ** u[None, :]  # (R, K)
     owner = np.repeat(np.arange(r_count), prm.hypotheses)
@@ -343,3 +344,8 @@ def bank_estimate(bank: Bank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cov = np.zeros((runs, 2 * n, 2 * n))
     np.add.at(cov, bank.owner, w[:, None, None] * (bank.p + d[:, :, None] * d[:, None, :]))
     return mean[:, :n], mean[:, n:], cov
+
+
+def copy_bank(bank: Bank) -> Bank:
+    """A copy that shares no array with ``bank``."""
+    return Bank(**{f.name: getattr(bank, f.name).copy() for f in fields(Bank)})

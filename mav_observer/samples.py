@@ -173,6 +173,9 @@ class Estimate:
     * ``bearing_age_s`` / ``velocity_age_s``: time since the latest sample of each stream.
     * ``correction_rel``: net correction applied over the window, relative to the range
       (the convergence indicator of the monitor).
+    * ``x_std_m``, ``a_std_mps``: standard deviation of each component of ``x_m`` (m) and
+      ``a_mps`` (m/s), and ``range_std_m`` that of the range along the estimated bearing (m),
+      from the estimator's covariance; ``None`` for the paper's observer, which has none.
     """
 
     t_s: float
@@ -186,6 +189,9 @@ class Estimate:
     bearing_age_s: float | None
     velocity_age_s: float | None
     correction_rel: float
+    x_std_m: np.ndarray | None = None
+    a_std_mps: np.ndarray | None = None
+    range_std_m: float | None = None
 
     def to_dict(self) -> dict[str, object]:
         """Plain JSON-serialisable form."""
@@ -201,4 +207,7 @@ class Estimate:
             "bearing_age_s": self.bearing_age_s,
             "velocity_age_s": self.velocity_age_s,
             "correction_rel": self.correction_rel,
+            "x_std_m": None if self.x_std_m is None else self.x_std_m.tolist(),
+            "a_std_mps": None if self.a_std_mps is None else self.a_std_mps.tolist(),
+            "range_std_m": self.range_std_m,
         }

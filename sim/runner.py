@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,8 @@ class RunResult:
     excitation: np.ndarray
     cond_m: np.ndarray
     correction_rel: np.ndarray
+    #: the estimator's range standard deviation (m), NaN where it gives none
+    range_std_m: np.ndarray | None = None
 
     @property
     def pos_err_m(self) -> np.ndarray:
@@ -73,4 +76,5 @@ def run(observer: BiasObserver, stream: Stream) -> RunResult:
         excitation=np.array([e.excitation for e in ests]),
         cond_m=np.array([e.cond_m for e in ests]),
         correction_rel=np.array([e.correction_rel for e in ests]),
+        range_std_m=np.array([math.nan if e.range_std_m is None else e.range_std_m for e in ests]),
     )

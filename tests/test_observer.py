@@ -99,6 +99,7 @@ def test_bias_free_error_never_increases(
     xh1_0 = rng.normal(size=3) * init_scale
     obs = BiasObserver(
         ObserverConfig(
+            estimator="paper",
             mode="bias_free",
             k_per_s=k,
             interpolation="hold",
@@ -170,8 +171,8 @@ def test_planar_case_converges() -> None:
 # -- observability: one hour of hover -------------------------------------------------
 
 
-def _hover_run(cfg: ObserverConfig) -> tuple[RunResult, float, float]:
-    start, hover = 200.0, 3600.0
+def _hover_run(cfg: ObserverConfig, hover: float = 3600.0) -> tuple[RunResult, float, float]:
+    start = 200.0
     sc = scenarios.orbit(pause=(start, hover), duration_s=start + hover + 158.0)
     res = run(BiasObserver(cfg), generate(sc))  # 20 Hz
     return res, start + 4.0, start + 4.0 + hover  # still from the end of the 4 s slow-down
@@ -183,7 +184,7 @@ def _assert_finite(res: RunResult) -> None:
 
 
 def test_an_hour_of_hover_with_the_static_hold() -> None:
-    res, still_from, still_to = _hover_run(ObserverConfig())
+    res, still_from, still_to = _hover_run(ObserverConfig(estimator="paper"))
     _assert_finite(res)
     i0, i1 = res.at(still_from), res.at(still_to)
     before = res.pos_err_m[i0]
@@ -198,11 +199,26 @@ def test_an_hour_of_hover_with_the_static_hold() -> None:
     assert res.pos_err_m[-1] < 0.005
 
 
+def test_ten_minutes_of_hover_with_the_riccati_estimator() -> None:
+    """Range is not observable while hovering: the estimate stays put (noise-free input),
+    its range uncertainty grows with the velocity's noise, honestly, and it converges again
+    once moving."""
+    res, still_from, still_to = _hover_run(ObserverConfig(), hover=600.0)
+    _assert_finite(res)
+    i0, i1 = res.at(still_from), res.at(still_to)
+    assert res.pos_err_m[i0] < 0.01
+    assert np.all(res.pos_err_m[i0 : i1 + 1] < 0.02)
+    assert set(res.status[res.at(still_from + 30.0) : i1 + 1]) == {"not observable"}
+    assert res.range_std_m[i1] > 2.0 * res.range_std_m[i0]  # it knows it is losing range
+    assert res.status[-1] == "converged"
+    assert res.pos_err_m[-1] < 0.005
+
+
 def test_an_hour_of_hover_with_the_paper_dynamics() -> None:
     """Without the hold (the paper's equations) M grows along y, cond(M) grows linearly, the
     numbers stay finite; the range drifts by exactly the bias error along the line of
     sight (unobservable) and converges again once moving."""
-    res, still_from, still_to = _hover_run(ObserverConfig(static_hold=False))
+    res, still_from, still_to = _hover_run(ObserverConfig(estimator="paper", static_hold=False))
     _assert_finite(res)
     i0, i1 = res.at(still_from), res.at(still_to)
     assert res.cond_m[i1] > 100 * res.cond_m[i0]
@@ -294,15 +310,22 @@ def test_velocity_may_arrive_after_its_bearing() -> None:
 # -- steps of any size, irregular sampling -----------------------------------------
 
 
-@pytest.mark.parametrize("k_star", [0.2, 5.0])
-def test_irregular_steps_from_1e_4_to_60_s_stay_finite(k_star: float) -> None:
+@pytest.mark.parametrize(
+    ("estimator", "k_star"), [("paper", 0.2), ("paper", 5.0), ("riccati", 0.2)]
+)
+def test_irregular_steps_from_1e_4_to_60_s_stay_finite(estimator: str, k_star: float) -> None:
     rng = np.random.default_rng(7)
     sc = scenarios.orbit()
     gaps = 10.0 ** rng.uniform(-4.0, math.log10(60.0), 300)
     tb = np.cumsum(gaps)
     tv = np.sort(tb + rng.uniform(-1e-4, 1e-4, tb.shape))
     obs = BiasObserver(
-        ObserverConfig(k_star_per_s=k_star, max_bearing_age_s=100.0, max_velocity_age_s=100.0)
+        ObserverConfig(
+            estimator=estimator,
+            k_star_per_s=k_star,
+            max_bearing_age_s=100.0,
+            max_velocity_age_s=100.0,
+        )
     )
     events = sorted(
         [(t, 0, VelocitySample(t, sc.v(t))) for t in tv]
@@ -415,7 +438,8 @@ def test_config_from_dict_refuses_unknown_keys() -> None:
 # -- warm restart -------------------------------------------------------------------
 
 
-def test_save_and_restore_continue_bit_identically() -> None:
+@pytest.mark.parametrize("estimator", ["riccati", "paper"])
+def test_save_and_restore_continue_bit_identically(estimator: str) -> None:
     stream = generate(
         scenarios.moving_target(duration_s=60.0),
         seed=9,
@@ -423,7 +447,7 @@ def test_save_and_restore_continue_bit_identically() -> None:
     )
     events = list(stream.events())
     cut = len(events) // 2 + 1  # leave a velocity waiting for its bearing, say
-    obs = BiasObserver()
+    obs = BiasObserver(ObserverConfig(estimator=estimator))
     for ev in events[:cut]:
         (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
     restored = BiasObserver.from_dict(json.loads(json.dumps(obs.to_dict())))
@@ -462,10 +486,23 @@ def test_restoring_a_bad_state_names_the_field(mutate, match: str) -> None:
 
 
 def test_initial_range_guess_places_the_first_estimate_on_the_bearing() -> None:
-    obs = BiasObserver(ObserverConfig(initial_range_m=25.0))
+    obs = BiasObserver(ObserverConfig(estimator="paper", initial_range_m=25.0))
     obs.update_velocity(VelocitySample(0.0, [1.0, 0.0, 0.0]))
     est = obs.update_bearing(BearingSample(0.0, [0.0, 0.6, 0.8]))
     assert np.allclose(est.x_m, [0.0, 15.0, 20.0])
+    assert np.array_equal(est.a_mps, np.zeros(3))
+
+
+def test_riccati_starts_on_the_bearing_with_the_range_spread_of_its_bank() -> None:
+    """The bank's hypotheses lie on the first bearing from 25/16 to 25*16 m: their mixture
+    is on the bearing, its range standard deviation as wide as that spread."""
+    obs = BiasObserver(ObserverConfig(initial_range_m=25.0))
+    obs.update_velocity(VelocitySample(0.0, [1.0, 0.0, 0.0]))
+    est = obs.update_bearing(BearingSample(0.0, [0.0, 0.6, 0.8]))
+    assert np.allclose(est.x_m / est.range_m, [0.0, 0.6, 0.8])
+    assert 25.0 / 16.0 < est.range_m < 25.0 * 16.0
+    assert est.range_std_m is not None and est.range_std_m > est.range_m / 2.0
+    assert est.a_std_mps is not None and np.allclose(est.a_std_mps, 5.0)
     assert np.array_equal(est.a_mps, np.zeros(3))
 
 

@@ -54,16 +54,17 @@ def test_every_source_converges_to_the_truth(emitted, bearing: str) -> None:
 
 def test_real_simulator_flight_finds_the_region_of_interest() -> None:
     """ArduCopter SITL with a servo mount pointed at an ROI 40 m north, 30 m east of home:
-    with the body-relative gimbal setting the final estimate is within 5 m of it; trusting
-    the flags (wrong for a servo mount) is far off."""
+    with the body-relative gimbal setting the final estimate is within 1 m of it (0.34 m
+    measured; the paper's observer: 3.3 m); trusting the flags (wrong for a servo mount) is
+    more than ten times as far off."""
     log = TLOGS / "ardupilot_sitl_servo_mount_roi.tlog"
     roi = np.array([40.0, 30.0, 0.01])  # home is at local (0, 0, 0.01)
     body = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="body"))
     flags = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="flags"))
     err_body = np.linalg.norm(np.array(body.targets["1/gimbal"].final.target_pos_ned_m) - roi)
     err_flags = np.linalg.norm(np.array(flags.targets["1/gimbal"].final.target_pos_ned_m) - roi)
-    assert err_body < 5.0
-    assert err_flags > 20.0
+    assert err_body < 1.0
+    assert err_flags > max(5.0, 10.0 * err_body)
     assert body.targets["1/gimbal"].estimates == 1634  # from the first LOCAL_POSITION_NED on
 
 
