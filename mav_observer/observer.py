@@ -889,8 +889,10 @@ class BiasObserver:
         excitation = self._diag[1]
         if self._cond is None or self._cond[0] != self._t_c:  # of the committed state
             if self._kalman:  # of the position's covariance (1 before the start)
-                cov_x = p_kf[: cfg.n, : cfg.n]
-                c = float(np.linalg.cond(cov_x)) if self._bank is not None else 1.0
+                c = 1.0
+                if self._bank is not None:
+                    ev = discrete.sym_eigvals(p_kf[: cfg.n, : cfg.n].ravel().tolist(), cfg.n)
+                    c = ev[-1] / ev[0] if ev[0] > 0.0 else math.inf
             else:
                 c = discrete.cond2(self._state.m, cfg.n)
             self._cond = (self._t_c, c)

@@ -52,40 +52,33 @@ def predict(
     a: np.ndarray,
     p: np.ndarray,
     dx_m: np.ndarray,
-    h_s: float | np.ndarray,
-    q_x: float | np.ndarray,
-    q_a: float | np.ndarray,
+    h_s: float,
+    q_x: float,
+    q_a: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Propagate over ``h_s`` seconds: ``x += dx_m + h a`` (``dx_m`` = the integral of ``v``
-    over the step, m), ``a`` unchanged, ``P = F P F^T + Q`` with ``F = [[I, h I], [0, I]]``.
+    """Propagate over ``h_s`` seconds (the same for the whole batch): ``x += dx_m + h a``
+    (``dx_m`` = the integral of ``v`` over the step, m), ``a`` unchanged,
+    ``P = F P F^T + Q`` with ``F = [[I, h I], [0, I]]``.
 
     ``q_x`` (m^2/s) and ``q_a`` (m^2/s^3) are the intensities of white noise on ``x'`` (from
-    the velocity's noise) and on ``a'`` (a random walk of the bias). Exact for a constant
-    ``a``; new arrays are returned.
+    the velocity's noise) and on ``a'`` (a random walk of the bias):
+    ``Q = [[q_x h + q_a h^3/3, q_a h^2/2], [q_a h^2/2, q_a h]]`` per axis. Exact for a
+    constant ``a``; new arrays are returned.
     """
-    h = np.asarray(h_s, dtype=float)
-    hb = h[..., None]
+    h = float(h_s)
     n = x.shape[-1]
-    x2 = x + dx_m + hb * a
-    # F P F^T by blocks: P = [[A, B], [B^T, C]]
-    pa = p[..., :n, :n]
-    pb = p[..., :n, n:]
-    pc = p[..., n:, n:]
-    hh = h[..., None, None]
-    pbh = pb + hh * pc
-    p2 = np.empty_like(p)
-    p2[..., :n, :n] = pa + hh * (pb + np.swapaxes(pb, -1, -2)) + hh * hh * pc
-    p2[..., :n, n:] = pbh
-    p2[..., n:, :n] = np.swapaxes(pbh, -1, -2)
-    p2[..., n:, n:] = pc
-    qx = np.asarray(q_x, dtype=float)[..., None, None]
-    qa = np.asarray(q_a, dtype=float)[..., None, None]
     eye = np.eye(n)
-    p2[..., :n, :n] += (qx * hh + qa * hh**3 / 3.0) * eye
-    p2[..., :n, n:] += qa * hh**2 / 2.0 * eye
-    p2[..., n:, :n] += qa * hh**2 / 2.0 * eye
-    p2[..., n:, n:] += qa * hh * eye
-    return x2, a, p2
+    f = np.kron(np.array([[1.0, h], [0.0, 1.0]]), eye)
+    q = np.kron(
+        np.array(
+            [
+                [q_x * h + q_a * h**3 / 3.0, q_a * h * h / 2.0],
+                [q_a * h * h / 2.0, q_a * h],
+            ]
+        ),
+        eye,
+    )
+    return x + dx_m + h * a, a, f @ p @ f.T + q
 
 
 def update(
