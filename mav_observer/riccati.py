@@ -67,17 +67,13 @@ def predict(
     """
     h = float(h_s)
     n = x.shape[-1]
-    eye = np.eye(n)
-    f = np.kron(np.array([[1.0, h], [0.0, 1.0]]), eye)
-    q = np.kron(
-        np.array(
-            [
-                [q_x * h + q_a * h**3 / 3.0, q_a * h * h / 2.0],
-                [q_a * h * h / 2.0, q_a * h],
-            ]
-        ),
-        eye,
-    )
+    i = np.arange(n)
+    f = np.eye(2 * n)
+    f[i, i + n] = h
+    q = np.zeros((2 * n, 2 * n))
+    q[i, i] = q_x * h + q_a * h**3 / 3.0
+    q[i, i + n] = q[i + n, i] = q_a * h * h / 2.0
+    q[i + n, i + n] = q_a * h
     return x + dx_m + h * a, a, f @ p @ f.T + q
 
 
@@ -257,10 +253,17 @@ def bank_start(y0: np.ndarray, r0_m: np.ndarray, prm: BankParams) -> Bank:
 def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> None:
     """Propagate every filter and observer over ``h_s`` s; ``dx_m`` (R, n) is each run's
     integral of ``v`` over the step (m). In place."""
-    bank.x, bank.a, bank.p = predict(
-        bank.x, bank.a, bank.p, dx_m[bank.owner], h_s, prm.q_x, prm.q_a
+    f = len(bank.owner)  # one call for the filters and the observers
+    x, a, p = predict(
+        np.concatenate((bank.x, bank.xp)),
+        np.concatenate((bank.a, bank.ap)),
+        np.concatenate((bank.p, bank.pp)),
+        np.concatenate((dx_m[bank.owner], dx_m)),
+        h_s,
+        prm.q_x,
+        prm.q_a,
     )
-    bank.xp, bank.ap, bank.pp = predict(bank.xp, bank.ap, bank.pp, dx_m, h_s, prm.q_x, prm.q_a)
+    bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:], a[:f], a[f:], p[:f], p[f:]
     bank.age_s = bank.age_s + h_s
 
 
@@ -277,13 +280,21 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     acquisition form; then prune, and re-seed runs whose innovations are inconsistent.
     In place."""
     runs, n = y.shape
-    yf = y[bank.owner]
-    bank.x, bank.a, bank.p, nis, logdet = update(
-        bank.x, bank.a, bank.p, yf, prm.sigma_rad, True, 0.0, math.inf
+    f = len(bank.owner)  # one call: the filters (tracking) and the observers (acquisition)
+    tracking = np.arange(f + runs) < f
+    r_w = np.concatenate((np.ones(f), bank.r0))
+    x, a, p, nis_all, logdet_all = update(
+        np.concatenate((bank.x, bank.xp)),
+        np.concatenate((bank.a, bank.ap)),
+        np.concatenate((bank.p, bank.pp)),
+        np.concatenate((y[bank.owner], y)),
+        prm.sigma_rad,
+        tracking,
+        r_w,
+        r_w,
     )
-    bank.xp, bank.ap, bank.pp, _, _ = update(
-        bank.xp, bank.ap, bank.pp, y, prm.sigma_rad, False, bank.r0, bank.r0
-    )
+    bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:], a[:f], a[f:], p[:f], p[f:]
+    nis, logdet = nis_all[:f], logdet_all[:f]
     w_prior = np.exp(bank.logw)
     logw = bank.logw - 0.5 * (nis + logdet)
     bank.logw = logw - _per_run_logsumexp(logw, bank.owner, runs)[bank.owner]
@@ -329,13 +340,16 @@ def bank_estimate(bank: Bank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     covariance (spread of the hypotheses included)."""
     runs = bank.runs
     n = bank.x.shape[-1]
-    w = np.exp(bank.logw)
+    f = len(bank.owner)
+    if f == runs and np.array_equal(bank.owner, np.arange(runs)):  # one filter each
+        return bank.x.copy(), bank.a.copy(), bank.p.copy()
+    w = np.zeros((runs, f))
+    w[bank.owner, np.arange(f)] = np.exp(bank.logw)
     s = np.concatenate((bank.x, bank.a), axis=-1)
-    mean = np.zeros((runs, 2 * n))
-    np.add.at(mean, bank.owner, w[:, None] * s)
+    mean = w @ s
     d = s - mean[bank.owner]
-    cov = np.zeros((runs, 2 * n, 2 * n))
-    np.add.at(cov, bank.owner, w[:, None, None] * (bank.p + d[:, :, None] * d[:, None, :]))
+    spread = bank.p + d[:, :, None] * d[:, None, :]
+    cov = (w @ spread.reshape(f, -1)).reshape(runs, 2 * n, 2 * n)
     return mean[:, :n], mean[:, n:], cov
 
 
