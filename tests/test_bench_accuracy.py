@@ -110,6 +110,7 @@ def test_summarise_on_a_synthetic_error() -> None:
     steady = 100.0 / 0.5 + 1
     assert rec.steps == steady
     assert m["rms"] == pytest.approx(math.sqrt((0.01 + 0.04 + 64.0) / 3))
+    assert m["rms_converged"] == pytest.approx(math.sqrt((0.01 + 0.04) / 2))
     assert m["bias_rms"] == pytest.approx(0.1)
     assert m["crlb"] == pytest.approx(0.1)
     assert m["ratio"] == pytest.approx(m["rms"] / 0.1)

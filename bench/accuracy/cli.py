@@ -71,13 +71,15 @@ def parser() -> argparse.ArgumentParser:
 
 
 def tasks_for(args: argparse.Namespace, cases: list[core.Case], names: list[str]) -> list[Task]:
+    if args.per_sample:
+        skipped = [e for e in names if e not in estimators.SERVICE_FORMS]
+        if skipped:
+            print(f"note: no product form, skipped with --per-sample: {skipped}", file=sys.stderr)
+        names = [e for e in names if e in estimators.SERVICE_FORMS]
     out = []
     for c in cases:
         for e in names:
             slow = e in estimators.PER_RUN or (args.per_sample and e == "riccati")
-            if args.per_sample and e not in estimators.SERVICE_FORMS:
-                print(f"note: {e} has no product form; skipped with --per-sample", file=sys.stderr)
-                continue
             out.append(
                 Task(
                     c,

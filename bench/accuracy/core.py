@@ -239,7 +239,7 @@ def summarise(rec: Recorder, bound: np.ndarray | None) -> dict[str, float]:
     """The metrics of one (case, estimator) from its recorder and the bound (T,) or None.
 
     Steady-state RMS values are over the runs whose estimates stayed finite (the others
-    count as diverged)."""
+    count as diverged); ``rms_converged`` only over the runs that did not diverge."""
     finite = np.isfinite(rec.sq_pos) & np.isfinite(rec.sq_bias) & np.isfinite(rec.range_rel)
     final = rec.rel[:, -1]
     diverged = ~finite | ~(final <= DIVERGED_REL)
@@ -247,6 +247,8 @@ def summarise(rec: Recorder, bound: np.ndarray | None) -> dict[str, float]:
     f = finite
     nf = max(int(f.sum()), 1)
     rms = math.sqrt(float(np.sum(rec.sq_pos[f])) / (nf * steps)) if f.any() else math.nan
+    ok = ~diverged
+    rms_ok = math.sqrt(float(np.mean(rec.sq_pos[ok])) / steps) if ok.any() else math.nan
     brms = math.sqrt(float(np.sum(rec.sq_bias[f])) / (nf * steps)) if f.any() else math.nan
     range_pct = 100.0 * rec.range_rel[f] / steps
     t10 = time_to_stay_below(rec.t, rec.rel)
@@ -260,6 +262,7 @@ def summarise(rec: Recorder, bound: np.ndarray | None) -> dict[str, float]:
         "t10_med": float(np.median(t10)),
         "t10_p90": float(np.quantile(t10, 0.9, method="higher")),
         "rms": rms,
+        "rms_converged": rms_ok,
         "bias_rms": brms,
         "range_pct": float(np.mean(range_pct)) if f.any() else math.nan,
         "range_pct_se": float(np.std(range_pct, ddof=1) / math.sqrt(len(range_pct)))

@@ -129,7 +129,11 @@ def headline_tables(results: list[Result]) -> str:
 def random_init_table(results: list[Result]) -> str:
     look = _lookup(results)
     names = [e for e in estimators.ALL if any(k[1] == e for k in look)]
-    cases = sorted({k[0] for k in look}, key=lambda c: (c.scenario, c.bearing_deg, c.velocity_mps))
+    rank = {c: i for i, c in enumerate(HEADLINE)}
+    cases = sorted(
+        {k[0] for k in look},
+        key=lambda c: (rank.get(c, len(rank)), c.scenario, c.bearing_deg, c.velocity_mps),
+    )
     out = [
         "| case | " + " | ".join(LABELS[e] for e in names) + " |",
         "|---|" + "---|" * len(names),
@@ -144,7 +148,8 @@ def random_init_table(results: list[Result]) -> str:
             m = r.metrics
             cells.append(
                 f"{100 * m['diverged']:.0f} % div.; "
-                f"t10 {fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; RMS {fmt(m['rms'])} m"
+                f"t10 {fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; RMS {fmt(m['rms'])} m "
+                f"({fmt(m['rms_converged'])} m without the diverged)"
             )
         out.append(f"| {c.label} | " + " | ".join(cells) + " |")
     return "\n".join(out)
