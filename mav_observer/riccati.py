@@ -231,7 +231,9 @@ def _seed(
     x = rf[:, None] * yf
     a = a0[owner].copy()
     p = initial_covariance(yf, rf, prm.range_rel_std * rf, prm.bias_std_mps, prm.sigma_rad)
-    logw = np.full(rf.shape, -math.log(prm.hypotheses))
+    # prior weights proportional to 1/sqrt(range): the mixture's mean range is the centre
+    logw = -0.5 * np.log(ranges)
+    logw = (logw - np.log(np.sum(np.exp(logw), axis=1, keepdims=True))).ravel()
     return x, a, p, logw, owner
 
 

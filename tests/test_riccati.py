@@ -158,7 +158,8 @@ def test_mixture_estimate_includes_the_spread_of_the_hypotheses() -> None:
     bank = riccati.bank_start(y0, np.array([10.0]), prm)
     x, _, p = riccati.bank_estimate(bank)
     ranges = np.array([2.5, 10.0, 40.0])
-    assert np.allclose(x[0], ranges.mean() * y0[0])
-    var_along = np.mean((0.1 * ranges) ** 2) + np.var(ranges)
+    w = ranges**-0.5 / np.sum(ranges**-0.5)  # prior weights: the mean is the guess
+    assert np.allclose(x[0], 10.0 * y0[0])
+    var_along = np.sum(w * ((0.1 * ranges) ** 2 + (ranges - 10.0) ** 2))
     assert y0[0] @ p[0, :3, :3] @ y0[0] == pytest.approx(var_along)
     assert np.allclose(np.diag(p[0])[3:], 25.0)
