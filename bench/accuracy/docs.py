@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import platform
+import subprocess
 import time
 from pathlib import Path
 
@@ -95,7 +96,22 @@ def _service_tasks(seed: int) -> list[Task]:
     return [Task(c, "riccati", RUNS_SERVICE, seed=seed, per_sample=True) for c in report.HEADLINE]
 
 
+def _product_version(root: Path) -> str:
+    """The commit of the code measured, and whether mav_observer/ differs from it."""
+
+    def git(*args: str) -> str:
+        proc = subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, check=False)
+        return proc.stdout.strip() if proc.returncode == 0 else ""
+
+    rev = git("rev-parse", "--short", "HEAD")
+    if not rev:
+        return "an unknown commit"
+    dirty = git("status", "--porcelain", "--", "mav_observer")
+    return f"commit {rev}" + (" with uncommitted changes in mav_observer/" if dirty else "")
+
+
 def write_docs(root: Path, *, jobs: int, seed: int = 0) -> int:
+    version = _product_version(root)
     t_start = time.perf_counter()
     grid = run_all(_grid_tasks(seed), jobs=jobs)
     random = run_all(_random_tasks(seed), jobs=jobs)
@@ -124,7 +140,7 @@ def write_docs(root: Path, *, jobs: int, seed: int = 0) -> int:
     ):
         made.append("accuracy_random_init.png")
 
-    text = _markdown(grid, random, service, timing, total, jobs, made)
+    text = _markdown(grid, random, service, timing, total, jobs, made, version)
     (root / "docs" / "accuracy.md").write_text(text)
     print(f"wrote docs/accuracy.md and {len(made)} figures in {total:.0f} s")
     return 0
@@ -138,6 +154,7 @@ def _markdown(
     total_s: float,
     jobs: int,
     figures: list[str],
+    version: str,
 ) -> str:
     service_ok = [r for r in service if not r.error]
     service_err = sorted({r.error for r in service if r.error})
@@ -212,7 +229,7 @@ def _markdown(
         "",
         f"This page: {RUNS} runs per case for the batched estimators, {RUNS_SLOW_HEADLINE} for "
         f"the per-sample ones on the headline cases and {RUNS_SLOW} elsewhere; generated in "
-        f"{total_s:.0f} s with {jobs} processes on {platform.machine()} "
+        f"{total_s:.0f} s with {jobs} processes on {platform.machine()} from {version} "
         f"({platform.python_implementation()} {platform.python_version()}, numpy "
         f"{np.__version__}).",
         "",
