@@ -1,10 +1,18 @@
-"""The biased-velocity observer of Le Bras, Hamel, Mahony and Samson (2015), in R^n.
+"""Estimators of position and velocity bias from a single direction, in R^n.
 
 :class:`BiasObserver` turns separately arriving, irregularly timed velocity and bearing
 samples into estimates of the relative position ``x`` and the constant velocity term ``a``
-(see :mod:`mav_observer.samples` for the conventions and :mod:`mav_observer.discrete` for the
-maths). Pure: no I/O, no clock; time is whatever the samples carry. Inside, vectors are lists
-of floats (see :mod:`mav_observer.discrete`); numpy arrays only at the interface.
+(see :mod:`mav_observer.samples` for the conventions). Two estimators share its sample
+handling, monitor and persistence (``ObserverConfig.estimator``):
+
+* ``riccati`` (default): a bank of extended Kalman filters supervised by a Riccati observer,
+  with a covariance (:mod:`mav_observer.riccati`, ``docs/estimator.md``): predicted between
+  sample times, updated at each bearing sample;
+* ``paper``: the observer of Le Bras, Hamel, Mahony and Samson (2015), exact
+  (:mod:`mav_observer.discrete`), integrated as described below.
+
+Pure: no I/O, no clock; time is whatever the samples carry. The paper's maths runs on lists
+of floats (see :mod:`mav_observer.discrete`), the riccati estimator's on numpy arrays.
 
 How samples become inputs of the continuous equations
 ------------------------------------------------------

@@ -27,7 +27,6 @@ No I/O, no clock.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import numpy as np
