@@ -344,14 +344,20 @@ def bank_estimate(bank: Bank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     f = len(bank.owner)
     if f == runs and np.array_equal(bank.owner, np.arange(runs)):  # one filter each
         return bank.x.copy(), bank.a.copy(), bank.p.copy()
-    w = np.zeros((runs, f))
-    w[bank.owner, np.arange(f)] = np.exp(bank.logw)
+    w = np.exp(bank.logw)[:, None]
     s = np.concatenate((bank.x, bank.a), axis=-1)
-    mean = w @ s
+    mean = _sum_by_run(w * s, bank.owner, runs)
     d = s - mean[bank.owner]
-    spread = bank.p + d[:, :, None] * d[:, None, :]
-    cov = (w @ spread.reshape(f, -1)).reshape(runs, 2 * n, 2 * n)
+    spread = (bank.p + d[:, :, None] * d[:, None, :]).reshape(f, -1)
+    cov = _sum_by_run(w * spread, bank.owner, runs).reshape(runs, 2 * n, 2 * n)
     return mean[:, :n], mean[:, n:], cov
+
+
+def _sum_by_run(values: np.ndarray, owner: np.ndarray, runs: int) -> np.ndarray:
+    """Rows of ``values`` (F, D) summed per owning run: (R, D), one ``bincount``."""
+    d = values.shape[1]
+    idx = (owner[:, None] * d + np.arange(d)).ravel()
+    return np.bincount(idx, weights=values.ravel(), minlength=runs * d).reshape(runs, d)
 
 
 def copy_bank(bank: Bank) -> Bank:

@@ -16,7 +16,6 @@ observer with gains (0.5, 5) as ``paper`` and (0.2, 0.2) as ``observer02``, and 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from typing import Protocol
@@ -112,7 +111,7 @@ def service_config(
 ) -> ObserverConfig:
     """The product configuration of estimator ``name`` for one run with range guess ``r0``.
 
-    ``riccati`` needs the product's ``ObserverConfig.estimator`` setting; it is told the
+    ``riccati`` is the product's default estimator; it is told the
     bearing noise (``bearing_noise_deg``, at least 0.05 deg) and the velocity noise
     (``velocity_noise_mps``)."""
     if name == "paper":
@@ -121,14 +120,6 @@ def service_config(
         return ObserverConfig.paper(n=n, k_per_s=0.2, k_star_per_s=0.2, initial_range_m=r0)
     if name != "riccati":
         raise NotReadyError(f"{name!r} has no product configuration (it lives only in bench/)")
-    fields = {f.name for f in dataclasses.fields(ObserverConfig)}
-    missing = {"estimator", "bearing_noise_deg", "velocity_noise_mps"} - fields
-    if missing:
-        raise NotReadyError(
-            f"mav_observer.observer.ObserverConfig has no {sorted(missing)} setting(s) yet: the "
-            "per-sample riccati path (BiasObserver(ObserverConfig(estimator='riccati'))) is "
-            "not available"
-        )
     return ObserverConfig(
         n=n,
         estimator="riccati",
