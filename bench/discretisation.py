@@ -42,7 +42,11 @@ def main() -> int:
         ref = None
         for interp in ("linear", "hold"):
             cfg = ObserverConfig(
-                k_per_s=k, k_star_per_s=ks, interpolation=interp, static_hold=False
+                estimator="paper",
+                k_per_s=k,
+                k_star_per_s=ks,
+                interpolation=interp,
+                static_hold=False,
             )
             res = run(BiasObserver(cfg), stream)
             if ref is None:
