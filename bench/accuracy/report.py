@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +75,21 @@ def _lookup(results: Iterable[Result]) -> dict[tuple[core.Case, str], Result]:
     return {(r.task.case, r.task.estimator): r for r in results if not r.error}
 
 
+def _case_rows(
+    cases: Iterable[core.Case],
+    names: list[str],
+    look: dict[tuple[core.Case, str], Result],
+    cell: Callable[[dict[str, float]], str],
+    label: Callable[[core.Case], str],
+) -> list[str]:
+    """One markdown row per case, one ``cell(metrics)`` per estimator (empty if not run)."""
+    rows = []
+    for c in cases:
+        cells = [cell(look[(c, e)].metrics) if (c, e) in look else "" for e in names]
+        rows.append(f"| {label(c)} | " + " | ".join(cells) + " |")
+    return rows
+
+
 def headline_tables(results: list[Result]) -> str:
     """The headline cases (paper and orbit scenarios, 0.5 and 2 deg, exact velocity): RMS
     and its ratio to the CRLB per estimator; then t10 and the mean range error. Empty if
@@ -112,17 +127,12 @@ def headline_tables(results: list[Result]) -> str:
         "| case | " + " | ".join(LABELS[e] for e in names) + " |",
         "|---|" + "---|" * len(names),
     ]
-    for c in cases:
-        cells = []
-        for e in names:
-            r = look.get((c, e))
-            if r is None:
-                cells.append("")
-                continue
-            m = r.metrics
-            div = f", {100 * m['diverged']:.0f} % div." if m["diverged"] > 0 else ""
-            cells.append(f"{fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; {_range(m)} %{div}")
-        out.append(f"| {c.scenario} {c.bearing_deg:g} deg | " + " | ".join(cells) + " |")
+
+    def t10_cell(m: dict[str, float]) -> str:
+        div = f", {100 * m['diverged']:.0f} % div." if m["diverged"] > 0 else ""
+        return f"{fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; {_range(m)} %{div}"
+
+    out += _case_rows(cases, names, look, t10_cell, lambda c: f"{c.scenario} {c.bearing_deg:g} deg")
     return "\n".join(out)
 
 
@@ -138,20 +148,17 @@ def random_init_table(results: list[Result]) -> str:
         "| case | " + " | ".join(LABELS[e] for e in names) + " |",
         "|---|" + "---|" * len(names),
     ]
-    for c in cases:
-        cells = []
-        for e in names:
-            r = look.get((c, e))
-            if r is None:
-                cells.append("")
-                continue
-            m = r.metrics
-            cells.append(
-                f"{100 * m['diverged']:.0f} % div.; "
-                f"t10 {fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; RMS {fmt(m['rms'])} m "
-                f"({fmt(m['rms_converged'])} m without the diverged)"
-            )
-        out.append(f"| {c.label} | " + " | ".join(cells) + " |")
+    out += _case_rows(
+        cases,
+        names,
+        look,
+        lambda m: (
+            f"{100 * m['diverged']:.0f} % div.; "
+            f"t10 {fmt(m['t10_med'])} / {fmt(m['t10_p90'])} s; RMS {fmt(m['rms'])} m "
+            f"({fmt(m['rms_converged'])} m without the diverged)"
+        ),
+        lambda c: c.label,
+    )
     return "\n".join(out)
 
 
