@@ -427,6 +427,12 @@ def test_a_bearing_arriving_after_its_stretch_was_committed_is_refused() -> None
         ({"hold_innovation_deg": 120.0}, "hold_innovation_deg must be at most 90"),
         ({"static_hold": "yes"}, "static_hold must be true or false"),
         ({"initial_range_m": -5.0}, "initial_range_m"),
+        ({"estimator": "ukf"}, "estimator must be one of"),
+        ({"bearing_noise_deg": 0.0}, "bearing_noise_deg must be a finite number > 0, got 0.0"),
+        ({"velocity_noise_mps": -0.1}, "velocity_noise_mps must be a finite number >= 0"),
+        ({"bias_walk_mps_per_sqrt_s": math.inf}, "bias_walk_mps_per_sqrt_s"),
+        ({"hypotheses": 0}, r"hypotheses must be an integer in \[1, 31\], got 0"),
+        ({"range_span": 0.5}, "range_span must be >= 1, got 0.5"),
     ],
 )
 def test_bad_configuration_names_the_key(kwargs: dict, match: str) -> None:
@@ -479,6 +485,13 @@ def test_save_and_restore_continue_bit_identically(estimator: str) -> None:
         (lambda d: d["config"].update(k_per_s=-2.0), "config: k_per_s"),
         (lambda d: d.update(bearings=[[1.0, [0.0, 0.0, 0.0]]]), "'bearings'.*zero length"),
         (lambda d: d.update(t_c="soon"), "'t_c' must be a finite number"),
+        (lambda d: d.pop("kalman"), "riccati estimator has no 'kalman'"),
+        (lambda d: d["kalman"]["bank"]["p"][0][0].__setitem__(0, math.nan), "'kalman.bank.p'"),
+        (lambda d: d["kalman"]["bank"].pop("logw"), "'kalman' is malformed"),
+        (
+            lambda d: d["kalman"]["bank"].update(owner=[3] * len(d["kalman"]["bank"]["owner"])),
+            "foreign owner",
+        ),
     ],
 )
 def test_restoring_a_bad_state_names_the_field(mutate, match: str) -> None:
