@@ -119,6 +119,10 @@ def _add_run_parser(sub: Any) -> None:
     run.add_argument("--estimate-rate-hz", type=float, help="most estimates/s per target, 0: all")
     run.add_argument("--stale-after-s", type=float, help="no data for this long: stale")
     run.add_argument("--state-file", help="save and restore the observers here")
+    run.add_argument(
+        "--signing-key-file",
+        help="MAVLink 2 signing: a file holding the key (64 hex digits) or a passphrase",
+    )
     run.add_argument("--sources", help="bearing sources, comma separated (default auto)")
     run.add_argument("--gimbal-angles", choices=("flags", "body"))
     run.add_argument("--sysid", type=int, action="append", help="only this vehicle (repeatable)")
@@ -168,6 +172,7 @@ def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
 
     put("mavlink", "url", args.mavlink)
     put("mavlink", "stale_after_s", args.stale_after_s)
+    put("mavlink", "signing_key_file", args.signing_key_file)
     put("zenoh", "config_file", args.zenoh_config)
     put("zenoh", "mode", args.zenoh_mode)
     put("zenoh", "listen", args.zenoh_listen)

@@ -35,6 +35,7 @@ from typing import Any
 
 from mav_observer import __version__, statefile
 from mav_observer.errors import MavObserverError
+from mav_observer.mavlink import signing
 from mav_observer.mavlink.connection import ConnectionReader
 from mav_observer.mavlink.tracker import Tracker
 from mav_observer.records import EstimateRecord
@@ -126,7 +127,13 @@ class Service:
         """A service reading ``settings['mavlink']['url']`` and publishing on ``session``."""
         m = settings["mavlink"]
         z = settings["zenoh"]
-        reader = ConnectionReader(m["url"], heartbeat_period_s=m["heartbeat_period_s"])
+        key_file = m["signing_key_file"]
+        reader = ConnectionReader(
+            m["url"],
+            heartbeat_period_s=m["heartbeat_period_s"],
+            signing_key=None if key_file is None else signing.load_key(key_file),
+            signing_link_id=m["signing_link_id"],
+        )
         pubs = Publications(session, z["prefix"], congestion_control=z["congestion_control"])
         return cls(settings, reader, pubs)
 

@@ -156,6 +156,13 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
             _number(0.0, lo_open=True),
             "no message from a vehicle for this long (s): its status is stale",
         ),
+        "signing_key_file": (
+            None,
+            _optional(_string),
+            "MAVLink 2 signing key file (64 hex digits or a passphrase); when set, unsigned "
+            "and wrongly signed messages are refused and counted",
+        ),
+        "signing_link_id": (0, _int(0, 255), "link id in the signatures of what we send"),
     },
     "zenoh": {
         "config_file": (

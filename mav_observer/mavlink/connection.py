@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from mav_observer.errors import ConfigError
+from mav_observer.mavlink import signing
 from mav_observer.mavlink.dialect import connect, mavlink
 
 log = logging.getLogger(__name__)
@@ -89,6 +90,9 @@ class ConnectionReader:
     a serial port unplugged) is counted in :attr:`link_errors` and reopened after a back-off
     (0.5 s doubling to 8 s). ``clock`` is the arrival clock (Unix seconds), injected for tests.
     BAD_DATA from pymavlink (bad CRC, junk) is yielded like any message so it can be counted.
+    ``signing_key`` (32 bytes): MAVLink 2 signing (:mod:`~mav_observer.mavlink.signing`):
+    frames without a valid signature come out as BAD_DATA, our HEARTBEATs are signed with
+    ``signing_link_id``.
     ``heartbeat_period_s``: send a HEARTBEAT this often (seconds), ``None`` never; ``"auto"``
     follows :func:`default_heartbeat_period_s`.
     """
@@ -102,8 +106,16 @@ class ConnectionReader:
         clock: Callable[[], float] = time.time,
         poll_s: float = 0.1,
         heartbeat_period_s: float | str | None = AUTO,
+        signing_key: bytes | None = None,
+        signing_link_id: int = 0,
     ) -> None:
         self.source = source
+        if signing_key is not None and len(signing_key) != signing.KEY_BYTES:
+            raise ConfigError(
+                f"signing_key must be {signing.KEY_BYTES} bytes, got {len(signing_key)}"
+            )
+        self.signing_key = signing_key
+        self.signing_link_id = signing_link_id
         self.duration_s = duration_s
         self.idle_timeout_s = idle_timeout_s
         self.clock = clock
@@ -139,6 +151,8 @@ class ConnectionReader:
             )
         except (ValueError, OverflowError) as exc:  # a malformed address: no retry helps
             raise ConfigError(f"MAVLink source {self.source!r}: {exc}") from None
+        if self.signing_key is not None:
+            signing.setup(self._conn, self.signing_key, self.signing_link_id)
         self._next_heartbeat = 0.0
         sock = self._udp_socket()
         if sock is not None:

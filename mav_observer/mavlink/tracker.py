@@ -35,7 +35,7 @@ from typing import Any
 
 from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError, StateError
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
-from mav_observer.mavlink import adapters
+from mav_observer.mavlink import adapters, signing
 from mav_observer.mavlink.adapters import Skip
 from mav_observer.mavlink.dialect import MSG_ID
 from mav_observer.mavlink.timebase import ClockMap
@@ -241,7 +241,7 @@ class Tracker:
         handler = self._handlers.get(mtype)
         if handler is None:
             if mtype == "BAD_DATA":
-                self.skipped["bad_data"] += 1
+                self.skipped[signing.rejection_reason(msg) or "bad_data"] += 1
             return []
         sysid = msg.get_srcSystem()
         if self.config.sysids is not None and sysid not in self.config.sysids:
