@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import subprocess
 import time
 from pathlib import Path
 
@@ -90,3 +91,95 @@ def test_publications_keys_encoding_queryable_and_liveliness(pair) -> None:
     assert wait_for(lambda: ("mav_observer/3/alive", "SampleKind.DELETE") in alive)
     sub.undeclare()
     lsub.undeclare()
+
+
+# -- TLS and user/password authentication, through the standard configuration file --------
+
+
+def _openssl(*args: str, cwd: Path) -> None:
+    subprocess.run(["openssl", *args], cwd=cwd, check=True, capture_output=True, timeout=60)
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A throw-away certificate authority and a server certificate for 127.0.0.1 (rustls
+    refuses a self-signed CA certificate used as the server's own)."""
+    d = tmp_path_factory.mktemp("pki")
+    _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out",
+             "ca.pem", "-days", "1", "-subj", "/CN=mav-observer test CA", cwd=d)  # fmt: skip
+    _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", "key.pem", "-out", "srv.csr",
+             "-subj", "/CN=localhost", cwd=d)  # fmt: skip
+    (d / "ext.cnf").write_text(
+        "basicConstraints=CA:FALSE\nsubjectAltName=DNS:localhost,IP:127.0.0.1\n"
+        "extendedKeyUsage=serverAuth\n"
+    )
+    _openssl("x509", "-req", "-in", "srv.csr", "-CA", "ca.pem", "-CAkey", "ca.key",
+             "-CAcreateserial", "-out", "cert.pem", "-days", "1", "-extfile", "ext.cnf",
+             cwd=d)  # fmt: skip
+    (d / "users.txt").write_text("alice:correct horse\n")
+    return d
+
+
+def _write(path: Path, text: str) -> str:
+    path.write_text(text)
+    return str(path)
+
+
+def _service_file(pki: Path, port: int) -> str:
+    """What docs/service.md gives for a service that only TLS clients with a password reach."""
+    return _write(
+        pki / f"service-{port}.json5",
+        f"""{{
+  mode: "peer",
+  listen: {{ endpoints: ["tls/127.0.0.1:{port}"] }},
+  transport: {{
+    link: {{ tls: {{ listen_certificate: "{pki}/cert.pem",
+                     listen_private_key: "{pki}/key.pem" }} }},
+    auth: {{ usrpwd: {{ user: "mav-observer", password: "its own",
+                        dictionary_file: "{pki}/users.txt" }} }},
+  }},
+}}""",
+    )
+
+
+def _client_file(pki: Path, port: int, *, proto: str = "tls", ca: bool = True,
+                 user: str | None = "alice", password: str = "correct horse") -> str:  # fmt: skip
+    tls = f'link: {{ tls: {{ root_ca_certificate: "{pki}/ca.pem" }} }},' if ca else ""
+    auth = f'auth: {{ usrpwd: {{ user: "{user}", password: "{password}" }} }},' if user else ""
+    name = f"client-{port}-{proto}-{ca}-{user}-{password.replace(' ', '_')}.json5"
+    return _write(
+        pki / name,
+        f'{{ mode: "client", connect: {{ endpoints: ["{proto}/127.0.0.1:{port}"] }}, '
+        f"transport: {{ {tls} {auth} }} }}",
+    )
+
+
+def test_tls_with_a_password_lets_the_right_client_in_and_no_one_else(pki: Path) -> None:
+    port = free_tcp_port()
+    service = open_session(session_config(config_file=_service_file(pki, port)))
+    try:
+        pubs = Publications(service, "mav_observer")
+        good = open_session(session_config(config_file=_client_file(pki, port)))
+        got: list[str] = []
+        try:
+            good.declare_subscriber("mav_observer/**", lambda s: got.append(str(s.key_expr)))
+            assert wait_for(lambda: _published(pubs, got), timeout_s=5.0)
+        finally:
+            good.close()
+        refused = {
+            "wrong password": _client_file(pki, port, password="guess"),
+            "no credentials": _client_file(pki, port, user=None),
+            "plain TCP": _client_file(pki, port, proto="tcp"),
+            "untrusted certificate": _client_file(pki, port, ca=False),
+        }
+        for conf_file in refused.values():  # refused at open: it gets nothing at all
+            with pytest.raises(ConfigError, match=r"cannot open the Zenoh session"):
+                open_session(session_config(config_file=conf_file))
+    finally:
+        service.close()
+
+
+def _published(pubs: Publications, got: list[str]) -> bool:
+    pubs.session.put("mav_observer/1/status", "{}")
+    time.sleep(0.05)
+    return "mav_observer/1/status" in got
