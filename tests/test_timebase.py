@@ -30,8 +30,26 @@ def test_reboot_and_reordering() -> None:
     c.update(500.0, 1500.0)
     assert c.update(499.5, 1500.1) == "out_of_order"
     assert c.last_boot_s == 500.0  # refused: nothing changed
-    assert c.update(3.0, 1501.0) == "reboot"
+    # a reboot is believed once 5 messages over 0.5 s agree on the new clock
+    assert [c.update(3.0 + 0.1 * i, 1501.0 + 0.1 * i) for i in range(6)] == [
+        "clock_unconfirmed"
+    ] * 5 + ["reboot"]
     assert c.offset_s == pytest.approx(1498.0)
+    assert c.last_boot_s == pytest.approx(3.5)
+
+
+def test_a_stray_message_from_the_past_or_the_future_is_refused_and_changes_nothing() -> None:
+    c = ClockMap()
+    for i in range(50):
+        c.update(500.0 + 0.1 * i, 1500.0 + 0.1 * i)
+    before = (c.offset_s, c.last_boot_s)
+    # stray messages with an old time (corrupted, or a foreign sender) spread over time
+    for i in range(20):
+        assert c.update(1.0, 1505.0 + 0.02 * i) == "clock_unconfirmed"
+        assert c.update(505.0 + 0.1 * i, 1505.0 + 0.1 * i) is None  # the real clock goes on
+    assert c.update(505.0 + 3600.0, 1507.0) == "time_jump"  # an hour ahead
+    assert c.offset_s == before[0]
+    assert c.update(507.1, 1507.1) is None
 
 
 def test_no_offset_yet_is_an_error() -> None:

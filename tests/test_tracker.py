@@ -101,7 +101,10 @@ def test_autopilot_reboot_resets_the_vehicle_and_says_so() -> None:
     feed(tr, flight(n=30, boot0=5_000), boot0_ms=5_000, t0=T0_UNIX + 60)  # booted again
     assert tr.events["autopilot_reboot"] == 1
     assert tr.observer(1, "gimbal") is not before
-    assert tr.observer(1, "gimbal").counts["bearing"] == 30
+    # the new clock is believed after 5 messages over 0.5 s: the first 5 bearings (10 Hz) are
+    # refused while it is confirmed, with the other messages of that half second
+    assert tr.observer(1, "gimbal").counts["bearing"] == 25
+    assert tr.skipped["clock_unconfirmed"] >= 5
 
 
 def test_bad_messages_are_counted_and_the_stream_goes_on() -> None:

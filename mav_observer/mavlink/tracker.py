@@ -287,8 +287,8 @@ class Tracker:
         if clock is None:
             clock = veh.clocks[key] = ClockMap()
         event = clock.update(boot_s, arrival)
-        if event == "out_of_order":
-            raise Skip("out_of_order", f"clock {key} went back")
+        if event in ("out_of_order", "clock_unconfirmed", "time_jump"):
+            raise Skip(event, f"clock {key}: time_boot_ms {boot_s:.3f} s refused ({event})")
         is_autopilot = key == veh.autopilot_compid
         if event == "reboot":
             if is_autopilot:
