@@ -17,10 +17,11 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from conftest import free_tcp_port, wait_for
 
 from mav_observer.zenoh_io import open_session, session_config
-from sim import emitter, scenarios
+from sim import emitter, fuzz, scenarios
 from sim.live import free_port, service_command, stop_process
 
 
@@ -335,3 +336,50 @@ def test_run_exits_with_a_message_on_a_bad_setting() -> None:
     )
     assert res.returncode == 1
     assert "observer.k_per_s must be > 0" in res.stderr
+
+
+def test_fuzzed_garbage_among_a_valid_stream_is_counted_and_changes_nothing(
+    tmp_path: Path,
+) -> None:
+    """100,000 damaged and nonsensical frames (``sim.fuzz``: random bytes, bit flips, cut
+    and over-long frames, lying lengths, bad checksums, unknown ids, NaN/infinite/absurd
+    fields of the vehicle's own sysid) sent over UDP while the emitter's orbit streams: the
+    service keeps running, counts what it skipped by reason, loses nothing in the kernel,
+    and the orbit's estimates converge as the clean test's do."""
+    mav, zp = ports()
+    truths = Truths()
+    frames = [f for _, f in fuzz.garbage(np.random.default_rng(2026), 100_000)]
+    log = tmp_path / "svc.log"
+    with (
+        service(mav, zp, log, "--estimate-rate-hz", "0") as proc,
+        subscriber(zp) as sink,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock,
+    ):
+        assert connected(sink)
+        time.sleep(0.3)
+        th, _ = emit(mav, duration_s=150.0, speed=15.0, truths=truths)  # 10 s of wall time
+        start = time.monotonic()
+        for i in range(0, len(frames), 500):  # spread over 9 s: about 11,000 frames/s
+            for f in frames[i : i + 500]:
+                sock.sendto(f, ("127.0.0.1", mav))
+            time.sleep(max(0.0, start + 9.0 * (i + 500) / len(frames) - time.monotonic()))
+        th.join(30)
+        time.sleep(1.5)  # the next status
+        assert proc.poll() is None, log.read_text()[-2000:]
+        code, _ = stop_process(proc)
+    assert code == 0
+    status = sink.of("mav_observer/1/status")[-1][1]
+    assert status["link"]["kernel_drops"] == 0
+    skipped = {**status["skipped"], **status["link_skipped"]}
+    assert skipped["bad_data"] > 50_000  # every damaged frame at least once
+    # the nonsense frames carry an old or absurd time_boot_ms: refused for it first
+    for reason in ("clock_unconfirmed", "time_jump", "non_finite", "zero_quaternion"):
+        assert skipped.get(reason, 0) > 100, (reason, skipped, status["events"])
+    assert status["events"].get("autopilot_reboot", 0) == 0
+    est = [d for _, d in sink.of("mav_observer/1/gimbal/estimate")]
+    last = [d for d in est if d["t_boot_s"] >= est[-1]["t_boot_s"] - 50.0]
+    errs = [errors(d, t) for d in last if (t := truths.at(1, d["t_boot_s"])) is not None]
+    assert len(errs) > 300
+    assert max(e[0] for e in errs) < 0.05
+    assert max(e[1] for e in errs) < 0.1
+    assert last[-1]["status"] == "converged"

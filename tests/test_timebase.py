@@ -47,7 +47,7 @@ def test_a_stray_message_from_the_past_or_the_future_is_refused_and_changes_noth
     for i in range(20):
         assert c.update(1.0, 1505.0 + 0.02 * i) == "clock_unconfirmed"
         assert c.update(505.0 + 0.1 * i, 1505.0 + 0.1 * i) is None  # the real clock goes on
-    assert c.update(505.0 + 3600.0, 1507.0) == "time_jump"  # an hour ahead
+    assert c.update(505.0 + 3600.0, 1507.0) == "time_jump"  # an hour ahead in 0.1 s
     assert c.offset_s == before[0]
     assert c.update(507.1, 1507.1) is None
 
@@ -55,3 +55,14 @@ def test_a_stray_message_from_the_past_or_the_future_is_refused_and_changes_noth
 def test_no_offset_yet_is_an_error() -> None:
     with pytest.raises(ValueError, match="not known yet"):
         ClockMap().to_boot(1.0)
+
+
+def test_a_stray_first_message_cannot_hold_the_real_clock_off() -> None:
+    """The first message seen had a bogus time (1 s while the autopilot is at 500 s): the real
+    clock, ahead of the mapping it made, is refused until 5 messages over 0.5 s agree, then
+    the mapping restarts from it."""
+    c = ClockMap()
+    c.update(1.0, 1500.0)
+    events = [c.update(500.0 + 0.1 * i, 1500.0 + 0.1 * i) for i in range(8)]
+    assert events == ["time_jump"] * 5 + ["clock_jump", None, None]
+    assert c.offset_s == pytest.approx(1000.0)

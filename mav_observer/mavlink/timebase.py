@@ -16,16 +16,19 @@ Policy (``docs/frames.md``, "Time"):
   clock (it then carries the link's latency).
 * ``time_boot_ms`` going back by more than ``reboot_back_s`` may mean that component
   rebooted, or may be one corrupted or foreign message. A reboot is **confirmed** only once
-  ``confirm_count`` messages over at least ``confirm_s`` of arrival time agree on the new
-  clock (their ``arrival - boot`` within ``confirm_tol_s`` of each other); then its clock
-  mapping restarts, and for the autopilot the caller resets the vehicle's observers. Until
+  ``confirm_count`` messages over at least ``confirm_s`` of arrival time follow one another
+  as a clock does (each later than the one before, by no more than the clock may advance,
+  below); then its clock mapping restarts, and for the autopilot the caller resets the
+  vehicle's observers. Until
   then such messages are refused (``clock_unconfirmed``) and the old clock goes on. A
   real reboot therefore costs its first ``confirm_s`` of messages; a stray message costs
   nothing. Going back by less than ``reboot_back_s`` is a reordered or duplicated message,
   refused as ``out_of_order``.
-* ``time_boot_ms`` ahead of what the arrival clock predicts by more than ``jump_ahead_s``
-  (a clock that jumps by hours, a corrupted field) is refused as ``time_jump``: the boot clock
-  cannot run faster than the arrival clock.
+* ``time_boot_ms`` may advance by at most ``jump_ahead_s`` plus ``max_rate`` times the arrival
+  time since the previous message (``max_rate`` 100 leaves room for simulators run faster than
+  real time); a message further ahead (a clock that jumps by hours, a corrupted field) is
+  refused as ``time_jump``. If such messages are confirmed as above (the first message seen
+  was the stray one), the mapping restarts from them (``clock_jump``).
 """
 
 from __future__ import annotations
@@ -41,33 +44,39 @@ class ClockMap:
     reboot_back_s: float = 2.0
     confirm_count: int = 5
     confirm_s: float = 0.5
-    confirm_tol_s: float = 0.5
     jump_ahead_s: float = 10.0
+    max_rate: float = 100.0
     offset_s: float | None = None
     last_boot_s: float | None = None
     last_arrival_s: float | None = None
-    #: messages of a possible new clock (boot_s, arrival_s), waiting for confirmation
-    pending: list[tuple[float, float]] = field(default_factory=list)
+    #: candidate new clocks: [first arrival, count, last boot, last arrival, min arrival - boot]
+    pending: list[list[float]] = field(default_factory=list)
+    #: most candidate clocks tracked at once (stray messages each start one)
+    max_candidates: int = 8
 
     def update(self, boot_s: float, arrival_s: float) -> str | None:
         """Account one timed message. Returns ``"reboot"`` when a clock that went back by more
-        than ``reboot_back_s`` is confirmed (the mapping restarts from the new clock),
-        ``"clock_unconfirmed"`` for such a message before that, ``"out_of_order"`` if it went
-        back by less, ``"time_jump"`` if it is too far ahead (those three: refuse the message;
-        nothing changed), else ``None``."""
-        if self.last_boot_s is not None and boot_s < self.last_boot_s:
-            if self.last_boot_s - boot_s <= self.reboot_back_s:
+        than ``reboot_back_s`` is confirmed, ``"clock_jump"`` when one that jumped ahead by
+        more than ``jump_ahead_s`` is (the mapping restarts from the new clock either way: a
+        stray first message cannot hold the real clock off for ever); ``"clock_unconfirmed"``
+        and ``"time_jump"`` for such messages before that, ``"out_of_order"`` if the clock went
+        back by less than ``reboot_back_s`` (those three: refuse the message, nothing
+        changed), else ``None``."""
+        if self.last_boot_s is not None and self.last_arrival_s is not None:
+            back = self.last_boot_s - boot_s
+            ahead = -back - self._advance_max(arrival_s - self.last_arrival_s)
+            if back > self.reboot_back_s or ahead > 0.0:
+                group = self._confirm(boot_s, arrival_s)
+                if group is None:
+                    return "clock_unconfirmed" if back > 0.0 else "time_jump"
+                self.offset_s = group[4]
+                self.last_boot_s, self.last_arrival_s = group[2], group[3]
+                self.pending = []
+                return "reboot" if back > 0.0 else "clock_jump"
+            if back > 0.0:
                 return "out_of_order"
-            if not self._confirm(boot_s, arrival_s):
-                return "clock_unconfirmed"
-            self.offset_s = min(a - b for b, a in self.pending)
-            self.last_boot_s, self.last_arrival_s = self.pending[-1]
-            self.pending = []
-            return "reboot"
-        if self.offset_s is not None and boot_s - (arrival_s - self.offset_s) > self.jump_ahead_s:
-            return "time_jump"
-        if self.pending and arrival_s - self.pending[-1][1] > self.confirm_s:
-            self.pending = []  # the old clock went on: what looked like a reboot was not
+        if self.pending:  # candidates not heard of for a while: the old clock went on
+            self.pending = [g for g in self.pending if arrival_s - g[3] <= 2 * self.confirm_s]
         candidate = arrival_s - boot_s
         if self.offset_s is None:
             self.offset_s = candidate
@@ -80,17 +89,26 @@ class ClockMap:
         self.last_arrival_s = arrival_s
         return None
 
-    def _confirm(self, boot_s: float, arrival_s: float) -> bool:
-        """Add a message of a possible new clock; True once enough of them agree."""
-        offset = arrival_s - boot_s
-        agree = [
-            (b, a)
-            for b, a in self.pending
-            if b < boot_s and abs((a - b) - offset) <= self.confirm_tol_s
-        ]
-        self.pending = [*agree, (boot_s, arrival_s)]
-        span = arrival_s - self.pending[0][1]
-        return len(self.pending) >= self.confirm_count and span >= self.confirm_s
+    def _advance_max(self, arrival_dt_s: float) -> float:
+        """How far a boot clock may advance in ``arrival_dt_s`` of arrival time (s)."""
+        return self.jump_ahead_s + self.max_rate * max(0.0, arrival_dt_s)
+
+    def _confirm(self, boot_s: float, arrival_s: float) -> list[float] | None:
+        """Add a message of a possible new clock to the candidate it follows (a later boot
+        time, by no more than :meth:`_advance_max`), or start a new one; return that
+        candidate once ``confirm_count`` messages of it span ``confirm_s`` of arrival time."""
+        for group in self.pending:
+            first_a, count, b0, a0, low = group
+            if b0 < boot_s <= b0 + self._advance_max(arrival_s - a0):
+                group[1:] = [count + 1, boot_s, arrival_s, min(low, arrival_s - boot_s)]
+                if group[1] >= self.confirm_count and arrival_s - first_a >= self.confirm_s:
+                    return group
+                return None
+        self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s])
+        if len(self.pending) > self.max_candidates:
+            self.pending.sort(key=lambda g: g[1])  # forget the least supported candidate
+            del self.pending[0]
+        return None
 
     def to_arrival(self, boot_s: float) -> float:
         """The arrival-clock time of ``boot_s`` (requires at least one update)."""

@@ -50,6 +50,13 @@ MAV_AUTOPILOT_INVALID = 8
 POSITION_MAX_AGE_S = 1.0
 
 
+#: LOCAL_POSITION_NED beyond these is nonsense, refused as ``out_of_range``: a speed no
+#: aircraft we serve reaches (m/s, per axis) and a local position farther than any flight from
+#: its origin (m).
+MAX_SPEED_MPS = 300.0
+MAX_LOCAL_POSITION_M = 1.0e6
+
+
 @dataclass(frozen=True)
 class TrackerConfig:
     """How messages become samples (``docs/frames.md``).
@@ -256,6 +263,10 @@ class Tracker:
         except Skip as s:
             self.skipped[s.reason] += 1
             veh.skipped[s.reason] += 1
+            n = veh.skipped[s.reason]
+            if n in (1, 10, 100) or n % 10_000 == 0:
+                log.info("vehicle %d: %s skipped as %s (%d so far): %s",
+                         sysid, mtype, s.reason, n, s)  # fmt: skip
         except MavObserverError as exc:
             self.skipped["invalid"] += 1
             veh.skipped["invalid"] += 1
@@ -290,9 +301,9 @@ class Tracker:
         if event in ("out_of_order", "clock_unconfirmed", "time_jump"):
             raise Skip(event, f"clock {key}: time_boot_ms {boot_s:.3f} s refused ({event})")
         is_autopilot = key == veh.autopilot_compid
-        if event == "reboot":
+        if event in ("reboot", "clock_jump"):
             if is_autopilot:
-                self._reboot(veh)
+                self._reboot(veh, "went back: reboot" if event == "reboot" else "jumped ahead")
                 veh.clocks[key] = clock  # keep the restarted mapping
             else:
                 self.events[f"clock_restart_{key}"] += 1
@@ -314,13 +325,14 @@ class Tracker:
         if veh.autopilot_compid is None:
             veh.autopilot_compid = compid
 
-    def _reboot(self, veh: _Vehicle) -> None:
+    def _reboot(self, veh: _Vehicle, how: str = "went back: reboot") -> None:
         log.warning(
-            "vehicle %d: autopilot clock went back: reboot, resetting its %d observer(s)",
+            "vehicle %d: autopilot clock %s, resetting its %d observer(s)",
             veh.sysid,
+            how,
             len(veh.observers),
         )
-        self.events["autopilot_reboot"] += 1
+        self.events["autopilot_reboot" if how.endswith("reboot") else "autopilot_clock_jump"] += 1
         keep = veh.autopilot_compid
         fresh = _Vehicle(veh.sysid, autopilot_compid=keep, skipped=veh.skipped)
         if self._pending.pop(veh.sysid, None):
@@ -346,6 +358,8 @@ class Tracker:
         vel = (msg.vx, msg.vy, msg.vz)
         if not all(math.isfinite(v) for v in (*pos, *vel)):
             raise Skip("non_finite", "LOCAL_POSITION_NED")
+        if max(map(abs, vel)) > MAX_SPEED_MPS or max(map(abs, pos)) > MAX_LOCAL_POSITION_M:
+            raise Skip("out_of_range", f"LOCAL_POSITION_NED position {pos} velocity {vel}")
         tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
         veh.position = (tb, pos, vel)
         v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)
