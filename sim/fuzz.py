@@ -87,9 +87,7 @@ def _unknown_msgid(rng: np.random.Generator, sysid: int) -> bytes:
     return header + payload + struct.pack("<H", crc)
 
 
-def garbage(
-    rng: np.random.Generator, count: int, *, sysid: int = 1
-) -> Iterator[tuple[str, bytes]]:
+def garbage(rng: np.random.Generator, count: int, *, sysid: int = 1) -> Iterator[tuple[str, bytes]]:
     """``count`` damaged or nonsensical frames, kinds drawn evenly from :data:`KINDS`."""
     valid = sample_frames(sysid)
     nonsense = nonsense_frames(sysid)
