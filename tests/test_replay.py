@@ -14,7 +14,7 @@ from mavmsg import TLOGS
 from mav_observer import replay as rp
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
-from sim import scenarios
+from sim import fuzz, scenarios
 from sim.emitter import BEARINGS, TARGET_OF, Emitter, EmitterConfig, run
 
 
@@ -164,3 +164,76 @@ def test_command_line_files_and_plot(emitted, tmp_path: Path) -> None:
     lines = proc.stdout.splitlines()
     assert lines[0].startswith("source:") and any("enough excitation" in x for x in lines)
     assert any(x.startswith("against truth, 1/landing_target_0") for x in lines)
+
+
+# -- damaged files: replay to the end, or a clear message; never a traceback ---------------
+
+
+def _no_traceback(proc: subprocess.CompletedProcess[str]) -> None:
+    assert "Traceback" not in proc.stderr + proc.stdout, proc.stderr[-2000:]
+    assert proc.returncode in (0, 1, 3), (proc.returncode, proc.stderr[-2000:])
+
+
+@pytest.mark.parametrize("log", sorted(p.name for p in TLOGS.glob("*.tlog")))
+def test_every_shared_log_replays_or_says_why(tmp_path: Path, log: str) -> None:
+    proc = _cli("replay", str(TLOGS / log), "--output", str(tmp_path / "out.jsonl"))
+    _no_traceback(proc)
+    if proc.returncode:  # damaged or without a bearing stream: replayed as far as it goes
+        assert proc.stderr.strip().splitlines()[-1], "a message saying why"
+        assert "Skipped messages by reason" in proc.stderr
+
+
+def _tlog_records(data: bytes) -> list[tuple[int, int]]:
+    """(offset, length) of each record of an undamaged tlog: 8-byte time, then a frame."""
+    out, i = [], 0
+    while i + 10 < len(data):
+        magic = data[i + 8]
+        n = data[i + 9]
+        flen = (12 + n + (13 if data[i + 10] & 1 else 0)) if magic == 0xFD else 8 + n
+        out.append((i, 8 + flen))
+        i += 8 + flen
+    return out
+
+
+def test_damaged_copies_of_an_emitter_log(emitted, tmp_path: Path) -> None:
+    """Zero holes, a cut tail, 5,000 garbage frames spliced in as records, an empty file and a
+    file that is not a tlog: each replays to its end or stops with a clear message."""
+    src = emitted["gimbal"][0].read_bytes()
+    rng = np.random.default_rng(5)
+    holes = bytearray(src)
+    for start in rng.integers(0, len(src) - 4096, 20):
+        n = int(rng.integers(16, 4096))
+        holes[start : start + n] = bytes(n)
+    records = _tlog_records(src)
+    spliced = bytearray()
+    garbage = iter(fuzz.garbage(rng, 5000))
+    for k, (off, length) in enumerate(records):
+        rec = src[off : off + length]
+        spliced += rec
+        if k % (len(records) // 5000) == 0:
+            frame = next(garbage, None)
+            if frame is not None:
+                spliced += rec[:8] + frame[1]  # the same timestamp, a damaged frame
+    files = {
+        "holes.tlog": bytes(holes),
+        "cut.tlog": src[: records[len(records) // 2][0] + 20],  # inside a frame
+        "spliced.tlog": bytes(spliced),
+        "empty.tlog": b"",
+        "notes.txt": b"these are not the bytes you are looking for\n" * 100,
+    }
+    results = {}
+    for name, data in files.items():
+        p = tmp_path / name
+        p.write_bytes(data)
+        results[name] = proc = _cli("replay", str(p), "--output", str(tmp_path / f"{name}.jsonl"))
+        _no_traceback(proc)
+    for name in ("holes.tlog", "cut.tlog", "spliced.tlog"):  # to the end, the damage reported
+        assert results[name].returncode == 0, results[name].stderr[-2000:]
+    assert "damage: " in results["holes.tlog"].stdout
+    assert "truncated_tail 1" in results["cut.tlog"].stdout
+    last = json.loads((tmp_path / "spliced.tlog.jsonl").read_text().splitlines()[-1])
+    assert last["status"] == "converged"
+    assert np.allclose(last["target_pos_ned_m"], (40.0, 30.0, 0.0), atol=0.05 * 18.0)
+    for name in ("empty.tlog", "notes.txt"):
+        assert results[name].returncode != 0
+        assert results[name].stderr.strip(), name  # a message, not silence
