@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from conftest import free_tcp_port, wait_for
 
 from mav_observer.zenoh_io import open_session, session_config
@@ -278,31 +279,40 @@ def test_a_pause_longer_than_the_stale_time_then_estimates_again(tmp_path: Path)
     assert not any(40.1 < t < 70.0 for t in est_t)
 
 
-def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path) -> None:
-    """SIGTERM a converged service while the vehicle flies on; the restarted one, with the
-    same state file, publishes a converged estimate within 1 s of the data returning (here:
-    of its liveliness token, declared at the first message). The subscriber stays as it is
-    through the restart (a Zenoh peer needs no restart)."""
+@pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
+def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path, how: str) -> None:
+    """Stop a converged service while the vehicle flies on: SIGTERM (the state saved on the
+    way out) or SIGKILL (no goodbye: the state file is the last periodic save, every 1 s
+    here). The restarted one, with the same state file, publishes a converged estimate
+    within 1 s of the data returning (here: of its liveliness token, declared at the first
+    message). The subscriber stays as it is through the restart (a Zenoh peer needs no
+    restart)."""
     mav, zp = ports()
     state = tmp_path / "state.json"
     log = tmp_path / "svc.log"
+    conf = tmp_path / "svc.toml"
+    conf.write_text("[state]\nsave_period_s = 1.0\n")
     stop = threading.Event()
     truths = Truths()
     with subscriber(zp) as sink:
-        with service(mav, zp, log, "--state-file", str(state)) as proc:
+        with service(mav, zp, log, "--state-file", str(state), "--config", str(conf)) as proc:
             assert connected(sink)
             time.sleep(0.3)
             th, _ = emit(mav, duration_s=400.0, speed=20.0, stop=stop, truths=truths)
             key = "mav_observer/1/gimbal/estimate"
             assert wait_for(lambda: any(d["status"] == "converged" for _, d in sink.of(key)), 15)
-            time.sleep(1.0)
-            code, took = stop_process(proc)
-            assert code == 0 and took < 2.0
+            time.sleep(1.5)  # at least one periodic save of a converged observer
+            if how == "SIGKILL":
+                proc.kill()
+                assert proc.wait(5) == -signal.SIGKILL
+            else:
+                code, took = stop_process(proc)
+                assert code == 0 and took < 2.0
         assert state.exists()
         n_before = len(sink.of(key))
         t_restart = time.monotonic()
         try:
-            with service(mav, zp, log, "--state-file", str(state)):
+            with service(mav, zp, log, "--state-file", str(state), "--config", str(conf)):
                 assert wait_for(lambda: len(sink.of(key)) > n_before + 20, 15)
                 alive = [
                     t
@@ -315,6 +325,7 @@ def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path) 
             th.join(5)
     assert alive, "the restarted service declared no liveliness token"
     first_conv = next(t for t, d in after if d["status"] == "converged")
+    print(f"{how}: converged {1000 * (first_conv - alive[0]):.1f} ms after the data returned")
     assert first_conv - alive[0] < 1.0
     # the very first estimates after the restart are converged, and stay so
     assert all(d["status"] == "converged" for _, d in after[:20])
