@@ -244,42 +244,45 @@ def replay(
     t0 = time.perf_counter()
     messages, reader = _messages(source, tracker, duration_s)
     bar = _progress(progress and isinstance(reader, TlogReader), summary.bytes_total or None)
-    with ExitStack() as stack:
-        jsonl: TextIO | None = None
-        writer: Any = None
-        try:
-            if output_jsonl is not None:
-                jsonl = stack.enter_context(open(output_jsonl, "w", encoding="utf-8"))
-            if output_csv is not None:
-                fh = stack.enter_context(open(output_csv, "w", encoding="utf-8", newline=""))
-                writer = csv.writer(fh)
-                writer.writerow(CSV_COLUMNS)
-        except OSError as exc:
-            raise ReplayError(f"cannot write output: {exc}") from exc
-        targets = summary.targets
-        handle = tracker.handle
-        is_tlog = isinstance(reader, TlogReader)
-        for n, (t, msg) in enumerate(messages, 1):
-            records = handle(t, msg)
-            if n % 4096 == 0:
-                if is_tlog:
-                    reader.drop(tracker.redundant_message_ids())
-                if bar is not None:
-                    bar.update(reader.position - bar.n)
-            for r in records:
-                key = f"{r.sysid}/{r.target}"
-                ts = targets.get(key)
-                if ts is None:
-                    ts = targets[key] = TargetSummary(r.sysid, r.target, r.source)
-                ts.add(r, exc_min)
-                if jsonl is not None:
-                    jsonl.write(r.to_json())
-                    jsonl.write("\n")
-                if writer is not None:
-                    writer.writerow(r.csv_row())
-                if keep_series:
-                    summary.series.setdefault(key, Series()).add(r)
-                summary.estimates_written += 1
+    try:
+        with ExitStack() as stack:
+            jsonl: TextIO | None = None
+            writer: Any = None
+            try:
+                if output_jsonl is not None:
+                    jsonl = stack.enter_context(open(output_jsonl, "w", encoding="utf-8"))
+                if output_csv is not None:
+                    fh = stack.enter_context(open(output_csv, "w", encoding="utf-8", newline=""))
+                    writer = csv.writer(fh)
+                    writer.writerow(CSV_COLUMNS)
+            except OSError as exc:
+                raise ReplayError(f"cannot write output: {exc}") from exc
+            targets = summary.targets
+            handle = tracker.handle
+            is_tlog = isinstance(reader, TlogReader)
+            for n, (t, msg) in enumerate(messages, 1):
+                records = handle(t, msg)
+                if n % 4096 == 0:
+                    if is_tlog:
+                        reader.drop(tracker.redundant_message_ids())
+                    if bar is not None:
+                        bar.update(reader.position - bar.n)
+                for r in records:
+                    key = f"{r.sysid}/{r.target}"
+                    ts = targets.get(key)
+                    if ts is None:
+                        ts = targets[key] = TargetSummary(r.sysid, r.target, r.source)
+                    ts.add(r, exc_min)
+                    if jsonl is not None:
+                        jsonl.write(r.to_json())
+                        jsonl.write("\n")
+                    if writer is not None:
+                        writer.writerow(r.csv_row())
+                    if keep_series:
+                        summary.series.setdefault(key, Series()).add(r)
+                    summary.estimates_written += 1
+    except OSError as exc:  # a full disk, a file system gone read-only, while writing
+        raise ReplayError(f"cannot write output: {exc}") from exc
     if bar is not None:
         bar.close()
     summary.wall_s = time.perf_counter() - t0

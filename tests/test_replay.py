@@ -237,3 +237,12 @@ def test_damaged_copies_of_an_emitter_log(emitted, tmp_path: Path) -> None:
     for name in ("empty.tlog", "notes.txt"):
         assert results[name].returncode != 0
         assert results[name].stderr.strip(), name  # a message, not silence
+
+
+def test_a_full_disk_stops_the_replay_with_a_message(emitted) -> None:
+    """Writing the estimates fails with ENOSPC (``/dev/full`` is a disk that is always full):
+    a clear message and exit code 1, no traceback."""
+    proc = _cli("replay", str(emitted["gimbal"][0]), "--output", "/dev/full")
+    assert proc.returncode == 1
+    assert "cannot write output: [Errno 28] No space left on device" in proc.stderr
+    assert "Traceback" not in proc.stderr

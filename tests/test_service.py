@@ -3,9 +3,11 @@ clock: rate limiting, status documents, staleness, the state file, shutdown."""
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -240,6 +242,34 @@ def test_an_unwritable_state_file_is_an_error_logged_not_fatal(
     assert svc.state_errors >= 5
     assert "cannot save the state file" in caplog.text
     assert len(pubs.estimates) > 50  # estimating and publishing went on
+
+
+def test_a_full_disk_is_an_error_logged_not_fatal(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The disk fills up: every save fails with ENOSPC (os.fsync refusing, as on a full
+    filesystem); no partial file is left, estimating and publishing go on, and the next save
+    after space returns succeeds."""
+    path = tmp_path / "state.json"
+    full = {"on": True}
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        if full["on"]:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    items, em = messages(10.0)
+    svc, pubs, _ = make_service(items, em, {"state": {"file": str(path), "save_period_s": 1.0}})
+    svc.run(duration_s=6.0)
+    assert svc.state_errors >= 3
+    assert "No space left on device" in caplog.text
+    assert not path.exists() and not list(tmp_path.glob(".state.json.*"))
+    assert len(pubs.estimates) > 30
+    full["on"] = False
+    svc.run(duration_s=5.0)
+    assert path.exists()
 
 
 def test_memory_stays_bounded_per_vehicle() -> None:
