@@ -579,3 +579,24 @@ def test_resume_refuses_what_it_cannot_carry() -> None:
         obs.resume(5.0, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     with pytest.raises(InvalidSampleError, match="dx_m"):
         obs.resume(20.0, [math.nan, 0.0, 0.0], [0.0, 0.0, 0.0])
+
+
+def test_flying_straight_at_the_target_for_minutes_stays_finite_and_says_so() -> None:
+    """The bearing points exactly along the direction of motion for 3 minutes (flying
+    straight at the target): range is not observable. The riccati estimator stays finite,
+    reports ``not observable``, keeps the estimate on the bearing and its range uncertainty
+    wide: it does not pretend to know."""
+    rng = np.random.default_rng(8)
+    d = np.array([0.6, 0.0, 0.8])
+    obs = BiasObserver(ObserverConfig(initial_range_m=50.0))
+    est = None
+    for k in range(3600):  # 180 s at 20 Hz, closing at 1 m/s from 300 m
+        t = 0.05 * k
+        obs.update_velocity(VelocitySample(t, -d))  # x' = v: the range shrinks
+        y = d + rng.normal(0.0, math.radians(0.5), 3)
+        est = obs.update_bearing(BearingSample(t, y / np.linalg.norm(y)))
+        assert np.all(np.isfinite(est.x_m)) and np.all(np.isfinite(est.a_mps))
+    assert est is not None
+    assert est.status is Status.NOT_OBSERVABLE
+    assert float(est.x_m @ d) / est.range_m > 0.999  # on the bearing
+    assert est.range_std_m is not None and est.range_std_m > 0.2 * est.range_m

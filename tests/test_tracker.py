@@ -239,3 +239,34 @@ def test_restoring_bad_entries_names_them(mutate, match: str) -> None:
     mutate(saved[0])
     with pytest.raises(StateError, match=match):
         Tracker().restore(saved)
+
+
+# -- semantic nonsense: each has a defined reaction ----------------------------------------
+
+
+def _estimates(recs) -> list[tuple[float, list[float]]]:
+    return [(r.t_boot_s, r.estimate.x_m.tolist()) for r in recs]
+
+
+def test_duplicated_messages_are_refused_and_change_nothing() -> None:
+    """Every message sent twice (a routing loop, two links merged): each repeat is refused as
+    ``duplicate`` and the estimates are those of the stream without repeats."""
+    clean = _estimates(feed(Tracker(), flight(n=40)))
+    tr = Tracker()
+    doubled = [m for m in flight(n=40) for m in (m, m)]
+    assert _estimates(feed(tr, doubled)) == clean
+    assert tr.skipped["duplicate"] == 3 * 40
+
+
+def test_a_heartbeat_flood_from_another_sysid_changes_nothing() -> None:
+    """A second system floods autopilot HEARTBEATs (10,000): it becomes a vehicle of its own
+    with no observer and no estimate; vehicle 1's estimates are exactly those without it."""
+    clean = _estimates(feed(Tracker(), flight(n=40)))
+    hb = message("HEARTBEAT", 2, 3, 0, 0, 4, 3, sysid=77)
+    msgs = []
+    for m in flight(n=40):
+        msgs += [m, *([hb] * 83)]
+    tr = Tracker()
+    assert _estimates(feed(tr, msgs)) == clean
+    assert set(tr.vehicles) == {1, 77} and not tr.vehicles[77].observers
+    assert tr.received["HEARTBEAT"] >= 9_960

@@ -202,6 +202,8 @@ class _Vehicle:
     home: Vec3 | None = None
     #: messages of this vehicle skipped, by reason (the tracker's ``skipped`` sums all)
     skipped: Counter[str] = field(default_factory=Counter)
+    #: the latest time_boot_ms per (message type, component): a repeat is a duplicate
+    last_time_ms: dict[tuple[str, int], int] = field(default_factory=dict)
 
 
 class Tracker:
@@ -259,6 +261,12 @@ class Tracker:
             veh = self.vehicles[sysid] = _Vehicle(sysid)
         out: list[EstimateRecord] = []
         try:
+            stamp = getattr(msg, "time_boot_ms", None)
+            if stamp is not None:
+                key = (mtype, msg.get_srcComponent())
+                if veh.last_time_ms.get(key) == stamp:
+                    raise Skip("duplicate", f"{mtype} time_boot_ms {stamp} again")
+                veh.last_time_ms[key] = stamp
             handler(veh, t_arrival_s, msg, out)
         except Skip as s:
             self.skipped[s.reason] += 1
