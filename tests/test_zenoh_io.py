@@ -183,3 +183,31 @@ def _published(pubs: Publications, got: list[str]) -> bool:
     pubs.session.put("mav_observer/1/status", "{}")
     time.sleep(0.05)
     return "mav_observer/1/status" in got
+
+
+def test_a_router_restart_is_rejoined() -> None:
+    """The service (a peer) and a subscriber (a client) connect to a router; the router stops
+    and a new one starts on the same port: with our connect retry (from every 0.1 s) both
+    rejoin it and the estimates flow again within 2 s."""
+    port = free_tcp_port()
+    router_conf = session_config(mode="router", listen=[f"tcp/127.0.0.1:{port}"])
+    peer = session_config(mode="peer", listen=[], connect=[f"tcp/127.0.0.1:{port}"])
+    router = open_session(router_conf)
+    service = open_session(peer)
+    sub = open_session(session_config(mode="client", connect=[f"tcp/127.0.0.1:{port}"]))
+    got: list[float] = []
+    sub.declare_subscriber("mav_observer/1/status", lambda s: got.append(time.monotonic()))
+    try:
+        assert wait_for(lambda: service.put("mav_observer/1/status", "{}") or got, 5.0)
+        router.close()
+        time.sleep(0.5)
+        router = open_session(router_conf)
+        t_back = time.monotonic()
+        assert wait_for(
+            lambda: service.put("mav_observer/1/status", "{}") or (got and got[-1] > t_back), 5.0
+        )
+        print(f"router restart: receiving again {1000 * (got[-1] - t_back):.1f} ms later")
+        assert got[-1] - t_back < 2.0
+    finally:
+        for s in (sub, service, router):
+            s.close()
