@@ -7,10 +7,17 @@ import time
 import tty
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mav_observer.errors import ConfigError
-from mav_observer.mavlink.connection import ConnectionReader, is_file_source, split_serial
-from mav_observer.mavlink.dialect import mavlink
+from mav_observer.mavlink.connection import (
+    ConnectionReader,
+    datagram_recv_msg,
+    is_file_source,
+    split_serial,
+)
+from mav_observer.mavlink.dialect import codec, mavlink
 from mav_observer.mavlink.tracker import Tracker
 from sim import scenarios
 from sim.emitter import Emitter, EmitterConfig, run
@@ -191,3 +198,39 @@ def test_a_malformed_address_is_a_config_error_not_a_retry() -> None:
     with pytest.raises(ConfigError, match=r"udpin:127\.0\.0\.1:99999"):
         reader.recv(0.1)
     reader.close()
+
+
+class _FakeUdp:
+    """Just what :func:`datagram_recv_msg` uses of a pymavlink UDP link: datagrams in a queue."""
+
+    def __init__(self, datagrams: list[bytes]) -> None:
+        self.mav = codec()
+        self.mav.robust_parsing = True
+        self.first_byte = False
+        self._queue = list(datagrams)
+
+    def pre_message(self) -> None:
+        pass
+
+    def post_message(self, _msg: object) -> None:
+        pass
+
+    def recv(self) -> bytes:
+        return self._queue.pop(0) if self._queue else b""
+
+
+@settings(max_examples=200, deadline=None)
+@given(junk=st.lists(st.binary(min_size=0, max_size=300), max_size=5))
+def test_a_damaged_datagram_never_costs_the_next_one(junk: list[bytes]) -> None:
+    """Whatever bytes came before (any number of datagrams of anything), a datagram holding a
+    good frame is decoded: a datagram's tail never swallows the next one."""
+    good = codec(1, 1).heartbeat_encode(2, 3, 0, 0, 4).pack(codec(1, 1))
+    link = _FakeUdp([*junk, bytes(good)])
+    msgs = []
+    for _ in range(10_000):
+        msg = datagram_recv_msg(link)
+        if msg is None and not link._queue and link.mav.buf_len() == 0:
+            break
+        if msg is not None:
+            msgs.append(msg)
+    assert [m.get_type() for m in msgs if m.get_type() != "BAD_DATA"][-1:] == ["HEARTBEAT"]

@@ -196,8 +196,9 @@ def _tlog_records(data: bytes) -> list[tuple[int, int]]:
 
 
 def test_damaged_copies_of_an_emitter_log(emitted, tmp_path: Path) -> None:
-    """Zero holes, a cut tail, 5,000 garbage frames spliced in as records, an empty file and a
-    file that is not a tlog: each replays to its end or stops with a clear message."""
+    """Zero holes, a cut tail, the fuzz test's 100,000 garbage frames spliced in as records
+    (same seed), an empty file and a file that is not a tlog: each replays to its end or stops
+    with a clear message."""
     src = emitted["gimbal"][0].read_bytes()
     rng = np.random.default_rng(5)
     holes = bytearray(src)
@@ -206,14 +207,15 @@ def test_damaged_copies_of_an_emitter_log(emitted, tmp_path: Path) -> None:
         holes[start : start + n] = bytes(n)
     records = _tlog_records(src)
     spliced = bytearray()
-    garbage = iter(fuzz.garbage(rng, 5000))
+    garbage = [f for _, f in fuzz.garbage(np.random.default_rng(2026), 100_000)]
+    per = len(garbage) / len(records)
+    g = 0
     for k, (off, length) in enumerate(records):
         rec = src[off : off + length]
         spliced += rec
-        if k % (len(records) // 5000) == 0:
-            frame = next(garbage, None)
-            if frame is not None:
-                spliced += rec[:8] + frame[1]  # the same timestamp, a damaged frame
+        while g < (k + 1) * per:  # the same timestamp, a damaged frame
+            spliced += rec[:8] + garbage[g]
+            g += 1
     files = {
         "holes.tlog": bytes(holes),
         "cut.tlog": src[: records[len(records) // 2][0] + 20],  # inside a frame

@@ -277,6 +277,10 @@ def test_a_pause_longer_than_the_stale_time_then_estimates_again(tmp_path: Path)
     est_t = [d["t_boot_s"] - boot0 for _, d in sink.of("mav_observer/1/gimbal/estimate")]
     assert any(t < 40.0 for t in est_t) and any(t > 75.0 for t in est_t)
     assert not any(40.1 < t < 70.0 for t in est_t)
+    # recovery: the first bearing after the link returns gives an estimate (30 Hz bearings)
+    first_back = min(t for t in est_t if t >= 70.0)
+    print(f"link back: first estimate {1000 * (first_back - 70.0):.0f} ms of data time later")
+    assert first_back - 70.0 < 0.1
 
 
 @pytest.mark.parametrize("how", ["SIGTERM", "SIGKILL"])
