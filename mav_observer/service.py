@@ -37,6 +37,7 @@ from mav_observer import __version__, statefile
 from mav_observer.errors import MavObserverError
 from mav_observer.mavlink import signing
 from mav_observer.mavlink.connection import ConnectionReader
+from mav_observer.mavlink.dialect import type_key
 from mav_observer.mavlink.tracker import Tracker
 from mav_observer.records import EstimateRecord
 from mav_observer.settings import Settings
@@ -198,7 +199,7 @@ class Service:
             if veh is None or veh.autopilot_compid is None:
                 return  # not (yet) a vehicle: a ground station, a stray component
             view = self._new_vehicle(sysid, now)
-        view.counts[msg.get_type()] += 1
+        view.counts[type_key(msg)] += 1
         if view.state != UP:
             log.info("vehicle %d: data again after %.1f s", sysid, now - view.last_mono)
             view.state = UP

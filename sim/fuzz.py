@@ -77,7 +77,7 @@ def nonsense_frames(sysid: int = 1, compid: int = 1) -> list[bytes]:
     return [bytes(x.pack(m)) for x in msgs]
 
 
-def _unknown_msgid(rng: np.random.Generator, sysid: int) -> bytes:
+def unknown_msgid_frame(rng: np.random.Generator, sysid: int) -> bytes:
     """A MAVLink 2 frame with a message id no dialect defines (checksum without crc_extra)."""
     payload = rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8).tobytes()
     msgid = int(rng.integers(40000, 2**24))
@@ -113,7 +113,7 @@ def garbage(rng: np.random.Generator, count: int, *, sysid: int = 1) -> Iterator
             base[-1] ^= int(rng.integers(1, 256))
             out = bytes(base)
         elif kind == "unknown_msgid":
-            out = _unknown_msgid(rng, sysid)
+            out = unknown_msgid_frame(rng, sysid)
         else:
             out = nonsense[int(rng.integers(len(nonsense)))]
         yield kind, out

@@ -3,12 +3,15 @@
 import functools
 import math
 
+import numpy as np
 import pytest
 from mavmsg import T0_UNIX, landing_target_fields, message
 
 from mav_observer.errors import ConfigError
+from mav_observer.mavlink.dialect import codec
 from mav_observer.mavlink.tracker import AttitudeHistory, Tracker, TrackerConfig
 from mav_observer.observer import ObserverConfig
+from sim import fuzz
 
 NAN = float("nan")
 FLAGS_VEHICLE = 0x2C
@@ -270,3 +273,17 @@ def test_a_heartbeat_flood_from_another_sysid_changes_nothing() -> None:
     assert _estimates(feed(tr, msgs)) == clean
     assert set(tr.vehicles) == {1, 77} and not tr.vehicles[77].observers
     assert tr.received["HEARTBEAT"] >= 9_960
+
+
+def test_unknown_message_ids_share_one_counter() -> None:
+    """Garbage can carry any of 16 million message ids: they are counted under one key, so
+    no counter grows with them."""
+    m = codec()
+    m.robust_parsing = True
+    rng = np.random.default_rng(3)
+    tr = Tracker()
+    for _ in range(2000):
+        for msg in m.parse_buffer(fuzz.unknown_msgid_frame(rng, 1)) or []:
+            tr.handle(T0_UNIX, msg)
+    assert tr.received["UNKNOWN"] >= 1900
+    assert not [k for k in tr.received if k.startswith("UNKNOWN_")]

@@ -28,7 +28,7 @@ from typing import Any
 
 from mav_observer.errors import ConfigError
 from mav_observer.mavlink import signing
-from mav_observer.mavlink.dialect import connect, mavlink
+from mav_observer.mavlink.dialect import connect, mavlink, type_key
 
 log = logging.getLogger(__name__)
 
@@ -292,7 +292,7 @@ class ConnectionReader:
         if msg is None:
             return None
         self._backoff = 0.5
-        self.counts[msg.get_type()] += 1
+        self.counts[type_key(msg)] += 1
         return self.clock(), msg
 
     def __iter__(self) -> Iterator[tuple[float, Any]]:

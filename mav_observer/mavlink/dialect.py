@@ -25,6 +25,14 @@ MSG_ID: dict[str, int] = {
 MSG_NAME: dict[int, str] = {v: k for k, v in MSG_ID.items()}
 
 
+def type_key(msg: object) -> str:
+    """The message's type for counters: its name, or ``UNKNOWN`` for every id the dialect does
+    not define (pymavlink names them ``UNKNOWN_<id>``: one key per id would let garbage grow
+    the counters without bound)."""
+    name: str = msg.get_type()  # type: ignore[attr-defined]
+    return "UNKNOWN" if name.startswith("UNKNOWN_") else name
+
+
 def msg_name(msgid: int) -> str:
     """Name of a message id, ``UNKNOWN_<id>`` if the dialect does not define it."""
     return MSG_NAME.get(msgid, f"UNKNOWN_{msgid}")

@@ -37,7 +37,7 @@ from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverErro
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
 from mav_observer.mavlink import adapters, signing
 from mav_observer.mavlink.adapters import Skip
-from mav_observer.mavlink.dialect import MSG_ID
+from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.mavlink.timebase import ClockMap
 from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
@@ -245,7 +245,7 @@ class Tracker:
     # -- entry point ----------------------------------------------------------------
     def handle(self, t_arrival_s: float, msg: Any) -> list[EstimateRecord]:
         """Process one decoded message; returns the estimates it produced (often none)."""
-        mtype = msg.get_type()
+        mtype = type_key(msg)
         self.received[mtype] += 1
         handler = self._handlers.get(mtype)
         if handler is None:
