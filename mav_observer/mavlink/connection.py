@@ -103,24 +103,27 @@ def datagram_recv_msg(conn: Any) -> Any:
     messages of one datagram still come one per call."""
     mav = conn.mav
     conn.pre_message()
-    msg = mav.parse_char(b"") if mav.buf_len() > 0 else None
-    if msg is None and mav.buf_len() > 0:
-        rest = bytes(mav.buf[mav.buf_index :])
-        _reset_parser(mav)
-        msg = mavlink.MAVLink_bad_data(rest, "truncated frame at the end of a datagram")
+    msg = _next_or_tail(mav, b"") if mav.buf_len() > 0 else None
     if msg is None:
         data = conn.recv()
         if not data:
             return None
         if conn.first_byte:
             conn.auto_mavlink_version(data)
-        msg = mav.parse_char(data)
-        if msg is None and mav.buf_len() > 0:
-            rest = bytes(mav.buf[mav.buf_index :])
-            _reset_parser(mav)
-            msg = mavlink.MAVLink_bad_data(rest, "truncated frame at the end of a datagram")
+        msg = _next_or_tail(mav, data)
     if msg is not None:
         conn.post_message(msg)
+    return msg
+
+
+def _next_or_tail(mav: Any, data: bytes) -> Any:
+    """The next message of the current datagram (``data`` added), or, when what is left is
+    not a whole frame, that rest as one BAD_DATA with the parser reset."""
+    msg = mav.parse_char(data)
+    if msg is None and mav.buf_len() > 0:
+        rest = bytes(mav.buf[mav.buf_index :])
+        _reset_parser(mav)
+        msg = mavlink.MAVLink_bad_data(rest, "truncated frame at the end of a datagram")
     return msg
 
 
