@@ -6,6 +6,7 @@ import threading
 import time
 import tty
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -19,14 +20,9 @@ from mav_observer.mavlink.connection import (
 )
 from mav_observer.mavlink.dialect import codec, mavlink
 from mav_observer.mavlink.tracker import Tracker
-from sim import scenarios
+from sim import fuzz, scenarios
 from sim.emitter import Emitter, EmitterConfig, run
-
-
-def free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from sim.live import free_port
 
 
 def track(reader: ConnectionReader, sender: threading.Thread) -> tuple[Tracker, int]:
@@ -234,3 +230,24 @@ def test_a_damaged_datagram_never_costs_the_next_one(junk: list[bytes]) -> None:
         if msg is not None:
             msgs.append(msg)
     assert [m.get_type() for m in msgs if m.get_type() != "BAD_DATA"][-1:] == ["HEARTBEAT"]
+
+
+def test_unknown_message_ids_do_not_pile_up_in_pymavlink() -> None:
+    """pymavlink keeps the last message of every type it has seen, and names each unknown id
+    a type of its own: 3,000 garbage frames of random unknown ids must not leave 3,000
+    entries behind (the soak's memory grew with them)."""
+    port = free_port(socket.SOCK_DGRAM)
+    reader = ConnectionReader(f"udpin:127.0.0.1:{port}", heartbeat_period_s=None)
+    reader.open()
+    rng = np.random.default_rng(0)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(3000):
+                s.sendto(fuzz.unknown_msgid_frame(rng, 1), ("127.0.0.1", port))
+        got = 0
+        while reader.recv(0.2) is not None:
+            got += 1
+        assert got == 3000 and reader.counts == {"UNKNOWN": 3000}
+        assert len(reader._conn.messages) < 10
+    finally:
+        reader.close()

@@ -295,7 +295,10 @@ class ConnectionReader:
         if msg is None:
             return None
         self._backoff = 0.5
-        self.counts[type_key(msg)] += 1
+        key = type_key(msg)
+        if key == "UNKNOWN":  # pymavlink keeps the last message of each type: not of these
+            self._conn.messages.pop(msg.get_type(), None)
+        self.counts[key] += 1
         return self.clock(), msg
 
     def __iter__(self) -> Iterator[tuple[float, Any]]:
