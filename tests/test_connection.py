@@ -248,6 +248,8 @@ def test_unknown_message_ids_do_not_pile_up_in_pymavlink() -> None:
         while reader.recv(0.2) is not None:
             got += 1
         assert got == 3000 and reader.counts == {"UNKNOWN": 3000}
-        assert len(reader._conn.messages) < 10
+        conn = reader._conn
+        assert len(conn.messages) < 10
+        assert all(len(st.messages) < 10 for st in conn.sysid_state.values())
     finally:
         reader.close()

@@ -297,9 +297,18 @@ class ConnectionReader:
         self._backoff = 0.5
         key = type_key(msg)
         if key == "UNKNOWN":  # pymavlink keeps the last message of each type: not of these
-            self._conn.messages.pop(msg.get_type(), None)
+            self._forget(msg)
         self.counts[key] += 1
         return self.clock(), msg
+
+    def _forget(self, msg: Any) -> None:
+        """Drop a message from pymavlink's last-message-per-type tables (the link's and its
+        sender's), where each unknown message id would otherwise stay as a type of its own."""
+        name = msg.get_type()
+        self._conn.messages.pop(name, None)
+        state = self._conn.sysid_state.get(msg.get_srcSystem())
+        if state is not None:
+            state.messages.pop(name, None)
 
     def __iter__(self) -> Iterator[tuple[float, Any]]:
         start = time.monotonic()
