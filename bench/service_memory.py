@@ -172,16 +172,21 @@ def run(args: argparse.Namespace, *, fuzz_share: float = 0.0) -> dict[str, Any]:
     return result
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options :func:`run` reads (shared with ``bench/soak.py``)."""
     parser.add_argument("--duration-s", type=float, default=600.0, help="sending time")
     parser.add_argument("--speed", type=float, default=7.0, help="scenario time / wall time")
     parser.add_argument("--start-s", type=float, default=5.0, help="the start sample, after data")
     parser.add_argument("--sample-s", type=float, default=30.0, help="RSS sampling period")
-    parser.add_argument("--estimate-rate-hz", type=float, help="service option (default: its own)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--service-log-level", default="WARNING")
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_run_arguments(parser)
+    parser.add_argument("--estimate-rate-hz", type=float, help="service option (default: its own)")
     args = parser.parse_args()
     print(
         f"sending {args.duration_s:g} s at {args.speed:g} x the typical mix "

@@ -102,13 +102,7 @@ def _clean_run(args: argparse.Namespace, n_last: int) -> list[dict[str, Any]]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration-s", type=float, default=600.0, help="sending time")
-    parser.add_argument("--speed", type=float, default=7.0, help="scenario time / wall time")
-    parser.add_argument("--start-s", type=float, default=5.0)
-    parser.add_argument("--sample-s", type=float, default=30.0)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--service-log-level", default="WARNING")
-    parser.add_argument("--json", type=Path, help="also write the results as JSON")
+    service_memory.add_run_arguments(parser)
     args = parser.parse_args()
     args.estimate_rate_hz = 0.0
     print(

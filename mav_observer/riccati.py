@@ -83,8 +83,8 @@ def update(
     y: np.ndarray,
     sigma_rad: float | np.ndarray,
     tracking: bool | np.ndarray,
-    r_min_m: float,
-    r_max_m: float,
+    r_min_m: float | np.ndarray,
+    r_max_m: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """One bearing update; returns ``(x, a, P, nis, log det S)``.
 

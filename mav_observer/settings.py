@@ -23,7 +23,7 @@ from typing import Any
 from mav_observer.errors import ConfigError
 from mav_observer.mavlink.connection import URL_PREFIXES
 from mav_observer.mavlink.tracker import SOURCES, TrackerConfig
-from mav_observer.observer import ObserverConfig
+from mav_observer.observer import ESTIMATORS, ObserverConfig
 
 DEFAULT_MAVLINK_URL = "udpin:127.0.0.1:14550"
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -210,7 +210,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
         "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
     },
     "observer": {
-        "estimator": ("riccati", _choice("riccati", "paper"), "riccati (default) or paper"),
+        "estimator": (ESTIMATORS[0], _choice(*ESTIMATORS), "riccati (default) or paper"),
         "bearing_noise_deg": (
             0.5,
             _number(0.0, lo_open=True),

@@ -311,7 +311,7 @@ class Tracker:
         is_autopilot = key == veh.autopilot_compid
         if event in ("reboot", "clock_jump"):
             if is_autopilot:
-                self._reboot(veh, "went back: reboot" if event == "reboot" else "jumped ahead")
+                self._reboot(veh, event)
                 veh.clocks[key] = clock  # keep the restarted mapping
             else:
                 self.events[f"clock_restart_{key}"] += 1
@@ -333,14 +333,17 @@ class Tracker:
         if veh.autopilot_compid is None:
             veh.autopilot_compid = compid
 
-    def _reboot(self, veh: _Vehicle, how: str = "went back: reboot") -> None:
+    def _reboot(self, veh: _Vehicle, event: str = "reboot") -> None:
+        """Reset a vehicle whose autopilot clock restarted: ``event`` is the clock's
+        ``"reboot"`` (it went back) or ``"clock_jump"`` (it jumped ahead)."""
+        how = "went back: reboot" if event == "reboot" else "jumped ahead"
         log.warning(
             "vehicle %d: autopilot clock %s, resetting its %d observer(s)",
             veh.sysid,
             how,
             len(veh.observers),
         )
-        self.events["autopilot_reboot" if how.endswith("reboot") else "autopilot_clock_jump"] += 1
+        self.events[f"autopilot_{event}"] += 1
         keep = veh.autopilot_compid
         fresh = _Vehicle(veh.sysid, autopilot_compid=keep, skipped=veh.skipped)
         if self._pending.pop(veh.sysid, None):
