@@ -391,6 +391,9 @@ class BiasObserver:
         self._kf_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._kf_tb: float | None = None
         self._vel_dt = 0.05
+        #: velocity sample time -> shift (m/s) of the interpolation on the interval that
+        #: ends at it (see :meth:`update_velocity_values`)
+        self._vel_shift: dict[float, list[float]] = {}
         self._counts = {"velocity": 0, "bearing": 0}
 
     # -- public properties ----------------------------------------------------------
@@ -507,14 +510,31 @@ class BiasObserver:
         self._accept(self._bearings, "bearing", sample.t_s, sample.y.tolist(), refuse_late=True)
         return self._estimate_at(sample.t_s)
 
-    def _update_velocity_trusted(self, t_s: float, v_mps: list[float]) -> None:
-        """:meth:`update_velocity` for a caller in this package that already checked the
-        sample (finite floats, the observer's dimension): no sample object is built."""
-        self._accept(self._velocities, "velocity", t_s, v_mps, refuse_late=False)
+    def update_velocity_values(
+        self,
+        t_s: float,
+        v_mps: list[float],
+        interval_mean_mps: list[float] | None = None,
+    ) -> None:
+        """:meth:`update_velocity` for a caller that already checked the sample (finite
+        floats, the observer's dimension): no sample object is built.
 
-    def _update_bearing_trusted(self, t_s: float, y: list[float]) -> Estimate:
-        """:meth:`update_bearing` for a caller in this package that already checked the
-        sample (finite floats, unit length, the observer's dimension)."""
+        ``interval_mean_mps``: the mean of ``v`` (m/s, the paper's sign) over the interval
+        from the previous velocity sample to this one, when it is known better than the
+        average of the two samples (for a vehicle, from the change of its position: see
+        ``docs/frames.md``, "Sparse velocity"). The velocity on that interval is then the
+        linear interpolation shifted by a constant so that its integral is exact."""
+        buf = self._velocities
+        self._accept(buf, "velocity", t_s, v_mps, refuse_late=False)
+        if interval_mean_mps is not None and len(buf) >= 2 and buf[-2][0] < t_s:
+            p = buf[-2][1]
+            self._vel_shift[t_s] = [
+                m - 0.5 * (a + b) for m, a, b in zip(interval_mean_mps, p, v_mps, strict=True)
+            ]
+
+    def update_bearing_values(self, t_s: float, y: list[float]) -> Estimate:
+        """:meth:`update_bearing` for a caller that already checked the sample (finite
+        floats, unit length, the observer's dimension)."""
         self._accept(self._bearings, "bearing", t_s, y, refuse_late=True)
         return self._estimate_at(t_s)
 
@@ -581,6 +601,10 @@ class BiasObserver:
                     break
             if keep_from:
                 del buf[:keep_from]
+        if self._vel_shift and self._velocities:
+            first = self._velocities[0][0]
+            for t in [t for t in self._vel_shift if t <= first]:
+                del self._vel_shift[t]
 
     def _horizon(self) -> float:
         cfg = self.config
@@ -663,12 +687,13 @@ class BiasObserver:
         p, q = self._bracket(self._velocities, t)
         if p is None:
             return (q if q is not None else self._velocities[0])[1]
-        if (
-            q is not None
-            and cfg.interpolation == "linear"
-            and q[0] - p[0] <= cfg.max_velocity_age_s
-        ):
-            return self._lerp(p, q, t)
+        if q is not None:
+            shift = self._vel_shift.get(q[0]) if self._vel_shift else None
+            if shift is not None:  # the interval's mean is known: keep its integral exact
+                v = self._lerp(p, q, t)
+                return [c + d for c, d in zip(v, shift, strict=True)]
+            if cfg.interpolation == "linear" and q[0] - p[0] <= cfg.max_velocity_age_s:
+                return self._lerp(p, q, t)
         return p[1]
 
     @staticmethod
@@ -923,8 +948,9 @@ class BiasObserver:
         a_out = np.array(a_now)
         x_out.setflags(write=False)
         a_out.setflags(write=False)
-        x_std = a_std = range_std = None
+        x_std = a_std = range_std = nis = None
         if self._kalman and started:
+            nis = float(self._bank.nis_avg[0]) / (cfg.n - 1)  # type: ignore[union-attr]
             n = cfg.n
             pxx = p_kf[:n, :n]
             if dt > 0.0:  # the prediction's uncertainty grows with the bias's
@@ -955,6 +981,7 @@ class BiasObserver:
             x_std_m=x_std,
             a_std_mps=a_std,
             range_std_m=range_std,
+            nis=nis,
         )
         self._estimate = est
         return est
@@ -994,6 +1021,7 @@ class BiasObserver:
             s.xh1 = [s.xh1[j] + dx[j] for j in range(n)]
         self._t_c = t
         self._velocities = [(t, v)]
+        self._vel_shift = {}
         del self._bearings[:-1]  # the last bearing, now too old to be used, keeps the horizon
         self._window.shift(gap)
         since = self._memory.observable_since_s
@@ -1199,6 +1227,7 @@ def _estimate_from_dict(e: Any) -> Estimate:
             x_std_m=_optional_array(e.get("x_std_m")),
             a_std_mps=_optional_array(e.get("a_std_mps")),
             range_std_m=None if e.get("range_std_m") is None else float(e["range_std_m"]),
+            nis=None if e.get("nis") is None else float(e["nis"]),
         )
     except (KeyError, TypeError, ValueError) as exc:
         raise StateError(f"observer state 'estimate' is malformed: {exc!r}") from exc

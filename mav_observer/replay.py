@@ -58,6 +58,9 @@ class Series:
     rel_pos: list[tuple[float, float, float]] = field(default_factory=list)
     bias: list[tuple[float, float, float]] = field(default_factory=list)
     range_m: list[float] = field(default_factory=list)
+    #: 1-sigma of the range (m) and of each component of the position (m); NaN if unknown
+    range_std: list[float] = field(default_factory=list)
+    pos_std: list[tuple[float, float, float]] = field(default_factory=list)
     pe: list[float] = field(default_factory=list)
     status: list[str] = field(default_factory=list)
 
@@ -67,6 +70,12 @@ class Series:
         self.rel_pos.append((float(e.x_m[0]), float(e.x_m[1]), float(e.x_m[2])))
         self.bias.append((float(e.a_mps[0]), float(e.a_mps[1]), float(e.a_mps[2])))
         self.range_m.append(e.range_m)
+        nan = math.nan
+        self.range_std.append(nan if e.range_std_m is None else e.range_std_m)
+        sd = e.x_std_m
+        self.pos_std.append(
+            (nan, nan, nan) if sd is None else (float(sd[0]), float(sd[1]), float(sd[2]))
+        )
         self.pe.append(e.excitation)
         self.status.append(str(e.status))
 
@@ -81,6 +90,9 @@ class TargetSummary:
     last_t_boot_s: float | None = None
     excited_s: float = 0.0
     covered_s: float = 0.0
+    converged_s: float = 0.0
+    nis_sum: float = 0.0
+    nis_count: int = 0
     final: EstimateRecord | None = None
 
     def add(self, r: EstimateRecord, excitation_min: float) -> None:
@@ -94,6 +106,12 @@ class TargetSummary:
                     Status.STALE,
                 ):
                     self.excited_s += dt
+                if prev.status == Status.CONVERGED:
+                    self.converged_s += dt
+        nis = r.estimate.nis
+        if nis is not None and math.isfinite(nis):
+            self.nis_sum += nis
+            self.nis_count += 1
         if self.first_t_boot_s is None:
             self.first_t_boot_s = r.t_boot_s
         self.last_t_boot_s = r.t_boot_s
@@ -103,6 +121,18 @@ class TargetSummary:
     @property
     def excited_share(self) -> float:
         return self.excited_s / self.covered_s if self.covered_s > 0 else 0.0
+
+    @property
+    def converged_share(self) -> float:
+        """Share of the time covered by estimates during which the status was converged."""
+        return self.converged_s / self.covered_s if self.covered_s > 0 else 0.0
+
+    @property
+    def nis_mean(self) -> float | None:
+        """Mean normalised innovation squared per degree of freedom over the estimates
+        (about 1 when the bearings are as noisy as the estimator was told); ``None`` for
+        an estimator without one."""
+        return self.nis_sum / self.nis_count if self.nis_count else None
 
 
 @dataclass
@@ -123,6 +153,8 @@ class ReplaySummary:
     estimates_written: int = 0
     wall_s: float = 0.0
     series: dict[str, Series] = field(default_factory=dict)
+    #: ``(t_boot_s, sysid, event)`` of the resets and clock events, in order
+    event_log: list[tuple[float, int, str]] = field(default_factory=list)
 
     @property
     def messages_per_s(self) -> float:
@@ -149,6 +181,8 @@ class ReplaySummary:
                     "source": t.source,
                     "estimates": t.estimates,
                     "excited_share": t.excited_share,
+                    "converged_share": t.converged_share,
+                    "nis_mean": t.nis_mean,
                     "final": None if t.final is None else t.final.to_dict(),
                 }
                 for k, t in self.targets.items()
@@ -181,7 +215,13 @@ class ReplaySummary:
             lines.append(
                 f"bearing source: vehicle {t.sysid} target {t.target!r} from {t.source}: "
                 f"{t.estimates} estimates, enough excitation "
-                f"{100 * t.excited_share:.0f} % of the time"
+                f"{100 * t.excited_share:.0f} % of the time, converged "
+                f"{100 * t.converged_share:.0f} % of the time"
+                + (
+                    ""
+                    if t.nis_mean is None
+                    else f", innovations {t.nis_mean:.2f} times the noise told (1 is consistent)"
+                )
             )
             if t.final is not None:
                 e = t.final.estimate
@@ -260,13 +300,8 @@ def replay(
             targets = summary.targets
             handle = tracker.handle
             is_tlog = isinstance(reader, TlogReader)
-            for n, (t, msg) in enumerate(messages, 1):
-                records = handle(t, msg)
-                if n % 4096 == 0:
-                    if is_tlog:
-                        reader.drop(tracker.redundant_message_ids())
-                    if bar is not None:
-                        bar.update(reader.position - bar.n)
+
+            def sink(records: list[EstimateRecord]) -> None:
                 for r in records:
                     key = f"{r.sysid}/{r.target}"
                     ts = targets.get(key)
@@ -281,6 +316,17 @@ def replay(
                     if keep_series:
                         summary.series.setdefault(key, Series()).add(r)
                     summary.estimates_written += 1
+
+            for n, (t, msg) in enumerate(messages, 1):
+                records = handle(t, msg)
+                if n % 4096 == 0:
+                    if is_tlog:
+                        reader.drop(tracker.redundant_message_ids())
+                    if bar is not None:
+                        bar.update(reader.position - bar.n)
+                if records:
+                    sink(records)
+            sink(tracker.flush())  # bearings still waiting for an attitude at the end
     except OSError as exc:  # a full disk, a file system gone read-only, while writing
         raise ReplayError(f"cannot write output: {exc}") from exc
     if bar is not None:
@@ -289,6 +335,7 @@ def replay(
     summary.used = dict(tracker.used.most_common())
     summary.skipped = dict(tracker.skipped.most_common())
     summary.events = {k: v for k, v in tracker.events.items() if k != "targets"}
+    summary.event_log = list(tracker.event_log)
     if isinstance(reader, TlogReader):
         st = reader.stats
         summary.messages_read = st.records

@@ -1,8 +1,9 @@
 """The replay report plot (PNG; needs matplotlib: ``pip install 'mav-observer[plots]'``).
 
-One column per target: relative position estimate (N, E, D) and range, bias estimate,
-excitation level with the status as a coloured band; with a truth file, the position and bias
-errors too.
+One column per target: relative position estimate (N, E, D) and range with its 2-sigma band,
+bias estimate, excitation level with the status as a coloured band; with a truth file, the
+position error against its 2-sigma band and the bias error. Resets and clock events (the
+tracker's event log) are vertical lines on every panel.
 """
 
 from __future__ import annotations
@@ -31,8 +32,10 @@ def plot_replay(
     title: str,
     errors: dict[str, dict[str, Any]] | None = None,
     excitation_min: float = 0.01,
+    events: list[tuple[float, int, str]] | None = None,
 ) -> None:
-    """Write the report for ``series`` (``{"sysid/target": Series}``) to ``path``."""
+    """Write the report for ``series`` (``{"sysid/target": Series}``) to ``path``;
+    ``events``: ``(t_boot_s, sysid, name)`` marked on the panels of that vehicle."""
     try:
         import matplotlib
 
@@ -58,7 +61,14 @@ def plot_replay(
         ax = axes[0][col]
         for i, lab in enumerate(("north", "east", "down")):
             ax.plot(tr, x[:, i], lw=0.8, label=lab)
-        ax.plot(tr, s.range_m, "k-", lw=1.0, label="range")
+        rng = np.asarray(s.range_m)
+        ax.plot(tr, rng, "k-", lw=1.0, label="range")
+        rsd = np.asarray(s.range_std, dtype=float)
+        if np.isfinite(rsd).any():
+            lo, hi = rng - 2.0 * rsd, rng + 2.0 * rsd
+            ax.fill_between(tr, lo, hi, color="k", alpha=0.15, lw=0, label="range +- 2 sigma")
+            top = np.nanmax(np.abs(x)) if len(x) else 1.0
+            ax.set_ylim(-1.5 * top, 1.5 * top)  # an early, wide band does not squash the rest
         ax.set_ylabel("target - vehicle (m)")
         ax.set_title(f"{title}: {key}", fontsize=9)
         ax.legend(fontsize=7, ncol=4)
@@ -88,11 +98,30 @@ def plot_replay(
             if err is not None and len(err["t_boot_s"]):
                 te = err["t_boot_s"] - t0
                 ax.semilogy(te, err["pos_err_m"], lw=0.8, label="|x - xhat| (m)")
+                sd = np.asarray(s.pos_std, dtype=float).reshape(-1, 3)
+                if np.isfinite(sd).any():
+                    band = 2.0 * np.sqrt(np.sum(sd * sd, axis=1))
+                    ax.fill_between(
+                        tr, 1e-4, band, color="C0", alpha=0.15, lw=0, label="2 sigma (position)"
+                    )
                 ax.semilogy(te, 0.05 * err["range_true_m"], "r--", lw=0.8, label="5 % of range")
                 ax.semilogy(te, err["bias_err_mps"], lw=0.8, label="|a - ahat| (m/s)")
                 ax.legend(fontsize=7)
             ax.set_ylabel("error against truth")
             ax.grid(alpha=0.3, which="both")
+        sysid = int(key.split("/", 1)[0]) if key.split("/", 1)[0].isdigit() else None
+        marks = [(te - t0, name) for te, sid, name in (events or []) if sid == sysid]
+        seen: set[str] = set()
+        for te, name in marks:
+            if not np.isfinite(te) or not (tr[0] <= te <= tr[-1] if len(tr) else False):
+                continue
+            for r in range(rows):
+                axes[r][col].axvline(
+                    te, color="m", lw=0.6, ls=":", label=None if name in seen or r else name
+                )
+            seen.add(name)
+        if seen:
+            axes[0][col].legend(fontsize=7, ncol=4)
         axes[rows - 1][col].set_xlabel("t (s, autopilot clock, from the first estimate)")
     fig.tight_layout()
     try:

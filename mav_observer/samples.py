@@ -176,6 +176,10 @@ class Estimate:
     * ``x_std_m``, ``a_std_mps``: standard deviation of each component of ``x_m`` (m) and
       ``a_mps`` (m/s), and ``range_std_m`` that of the range along the estimated bearing (m),
       from the estimator's covariance; ``None`` for the paper's observer, which has none.
+    * ``nis``: the estimator's normalised innovation squared per degree of freedom, averaged
+      over its recent bearings (about 1 when the bearings agree with the model and the noise
+      setting; well above 1: more noise than told, or outliers); ``None`` for the paper's
+      observer.
     """
 
     t_s: float
@@ -192,6 +196,7 @@ class Estimate:
     x_std_m: np.ndarray | None = None
     a_std_mps: np.ndarray | None = None
     range_std_m: float | None = None
+    nis: float | None = None
 
     def to_dict(self) -> dict[str, object]:
         """Plain JSON-serialisable form."""
@@ -210,4 +215,5 @@ class Estimate:
             "x_std_m": None if self.x_std_m is None else self.x_std_m.tolist(),
             "a_std_mps": None if self.a_std_mps is None else self.a_std_mps.tolist(),
             "range_std_m": self.range_std_m,
+            "nis": self.nis,
         }

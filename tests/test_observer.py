@@ -600,3 +600,25 @@ def test_flying_straight_at_the_target_for_minutes_stays_finite_and_says_so() ->
     assert est.status is Status.NOT_OBSERVABLE
     assert float(est.x_m @ d) / est.range_m > 0.999  # on the bearing
     assert est.range_std_m is not None and est.range_std_m > 0.2 * est.range_m
+
+
+@pytest.mark.parametrize("estimator", ["riccati", "paper"])
+def test_an_interval_mean_velocity_makes_the_prediction_exact(estimator: str) -> None:
+    # two velocity samples 1 s apart whose average is not the interval's mean (a turn): the
+    # mean given moves the estimate by exactly mean * dt (plus ahat * dt)
+    obs = BiasObserver(ObserverConfig(estimator=estimator, initial_range_m=10.0))
+    obs.update_velocity_values(0.0, [1.0, 0.0, 0.0])
+    obs.update_bearing_values(0.0, [0.6, 0.8, 0.0])
+    x0 = obs.predict(0.0).x_m.copy()
+    a0 = np.array(obs.a_mps)
+    obs.update_velocity_values(1.0, [0.0, 1.0, 0.0], interval_mean_mps=[0.7, 0.4, 0.1])
+    x1 = obs.predict(1.0).x_m
+    np.testing.assert_allclose(x1 - x0, np.array([0.7, 0.4, 0.1]) + a0, atol=1e-9)
+    # without it: the trapezoid of the two samples
+    plain = BiasObserver(ObserverConfig(estimator=estimator, initial_range_m=10.0))
+    plain.update_velocity_values(0.0, [1.0, 0.0, 0.0])
+    plain.update_bearing_values(0.0, [0.6, 0.8, 0.0])
+    plain.update_velocity_values(1.0, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(
+        plain.predict(1.0).x_m - x0, np.array([0.5, 0.5, 0.0]) + a0, atol=1e-9
+    )

@@ -103,6 +103,16 @@ def gimbal_yaw_frame(flags: int) -> str:
     return "earth" if flags & GIMBAL_YAW_LOCK else "vehicle"
 
 
+def gimbal_needs_vehicle_yaw(flags: int, delta_yaw: float = math.nan) -> bool:
+    """True if a GIMBAL_DEVICE_ATTITUDE_STATUS with these ``flags`` (and ``delta_yaw``)
+    needs the vehicle's yaw to give a direction in NED (its yaw is in the vehicle frame and
+    the message does not carry the vehicle's yaw itself)."""
+    if gimbal_yaw_frame(flags) == "earth":
+        return False
+    new_style = flags & (GIMBAL_YAW_IN_VEHICLE_FRAME | GIMBAL_YAW_IN_EARTH_FRAME)
+    return not (new_style and math.isfinite(delta_yaw))
+
+
 def gimbal_camera_attitude(
     q: Quat,
     flags: int,

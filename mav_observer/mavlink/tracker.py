@@ -55,6 +55,18 @@ POSITION_MAX_AGE_S = 1.0
 #: its origin (m).
 MAX_SPEED_MPS = 300.0
 MAX_LOCAL_POSITION_M = 1.0e6
+#: Bearings waiting for the vehicle attitude of their own time, per vehicle, at the most.
+MAX_WAITING = 64
+#: A component whose clock offset (arrival - time_boot_ms) is within this of the autopilot's
+#: is on the autopilot's clock (s): its time_boot_ms is used as it is.
+SAME_CLOCK_TOL_S = 0.05
+#: LOCAL_POSITION_NED's position is used for the displacement between two of its samples
+#: further apart than this (s) and closer than :data:`SPARSE_VELOCITY_MAX_S`.
+SPARSE_VELOCITY_S = 0.2
+SPARSE_VELOCITY_MAX_S = 5.0
+#: Time constant (s) of the mean drift between LOCAL_POSITION_NED's position and its
+#: integrated velocity (a constant velocity error stays in the estimate of ``a``).
+DRIFT_TAU_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -73,6 +85,10 @@ class TrackerConfig:
       not used (the bearing is skipped as ``no_attitude``).
     * ``max_camera_attitude_age_s``: same for pairing a tracked point with the gimbal or mount
       attitude.
+    * ``attitude_wait_s``: a bearing that needs the vehicle attitude and arrives before the
+      ATTITUDE of its own time waits for it at most this long (arrival time, s); then it is
+      used with the attitude extrapolated by the reported body rates (counted as
+      ``attitude_extrapolated``). 0: never wait.
     * ``sysids``: only these vehicles (``None``: all).
     * ``restore_max_gap_s``: a saved observer older than this (vehicle time) is not restored
       (:meth:`Tracker.restore`).
@@ -88,6 +104,7 @@ class TrackerConfig:
     camera_vfov_deg: float | None = None
     max_attitude_age_s: float = 0.5
     max_camera_attitude_age_s: float = 0.5
+    attitude_wait_s: float = 0.3
     sysids: tuple[int, ...] | None = None
     restore_max_gap_s: float = 600.0
     observer: ObserverConfig = field(default_factory=ObserverConfig)
@@ -119,6 +136,9 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
                 raise ConfigError(f"{name} must be a finite number > 0, got {v!r}")
+        w = self.attitude_wait_s
+        if not (isinstance(w, (int, float)) and math.isfinite(w) and 0.0 <= w <= 5.0):
+            raise ConfigError(f"attitude_wait_s must be a number in [0, 5] s, got {w!r}")
         if self.observer.n != 3:
             raise ConfigError(f"observer n must be 3 for NED, got {self.observer.n}")
 
@@ -147,27 +167,65 @@ class TrackerConfig:
 
 
 class AttitudeHistory:
-    """Recent vehicle attitudes ``(t_s, roll, pitch, yaw)`` on the autopilot clock, bounded."""
+    """Recent vehicle attitudes ``(t_s, roll, pitch, yaw)`` on the autopilot clock, bounded,
+    with the latest Euler angle rates (rad/s) for extrapolation."""
 
     def __init__(self, maxlen: int = 128) -> None:
         self._h: deque[tuple[float, float, float, float]] = deque(maxlen=maxlen)
+        self._rates: tuple[float, float, float] | None = None
 
-    def add(self, t: float, roll: float, pitch: float, yaw: float) -> None:
-        if self._h and t < self._h[-1][0]:
+    @property
+    def latest_t_s(self) -> float | None:
+        """Time of the latest attitude (s), ``None`` before any."""
+        return self._h[-1][0] if self._h else None
+
+    def add(
+        self,
+        t: float,
+        roll: float,
+        pitch: float,
+        yaw: float,
+        body_rates: tuple[float, float, float] | None = None,
+    ) -> None:
+        """Add an attitude; ``body_rates`` (p, q, r in rad/s, FRD body frame) when the message
+        has them (ATTITUDE's rollspeed, pitchspeed, yawspeed), else the rates come from the
+        difference with the previous attitude."""
+        h = self._h
+        if h and t < h[-1][0]:
             return  # older than what we have: keep the history ordered
-        if self._h and t == self._h[-1][0]:
-            self._h.pop()
-        self._h.append((t, roll, pitch, yaw))
+        if h and t == h[-1][0]:
+            h.pop()
+        rates = None
+        if body_rates is not None and all(map(math.isfinite, body_rates)) and any(body_rates):
+            rates = euler_rates(roll, pitch, body_rates)
+        elif h and 0.0 < t - h[-1][0] <= 0.5:
+            a = h[-1]
+            dt = t - a[0]
+            rates = (
+                (roll - a[1]) / dt,
+                (pitch - a[2]) / dt,
+                math.remainder(yaw - a[3], 2 * math.pi) / dt,
+            )
+        self._rates = rates
+        h.append((t, roll, pitch, yaw))
 
     def at(self, t: float, max_age_s: float) -> tuple[float, float, float] | None:
-        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped), or
-        the nearest one within ``max_age_s``; ``None`` if there is none."""
+        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped);
+        after the latest one, extrapolated with its rates for at most ``max_age_s`` (held
+        when no rate is known); else the nearest one within ``max_age_s``; ``None`` if there
+        is none."""
         h = self._h
         if not h:
             return None
         last = h[-1]
         if t >= last[0]:
-            return last[1:] if t - last[0] <= max_age_s else None
+            dt = t - last[0]
+            if dt > max_age_s:
+                return None
+            r = self._rates
+            if r is None or dt == 0.0:
+                return last[1:]
+            return (last[1] + r[0] * dt, last[2] + r[1] * dt, last[3] + r[2] * dt)
         for i in range(len(h) - 2, -1, -1):
             a = h[i]
             if a[0] <= t:
@@ -184,6 +242,32 @@ class AttitudeHistory:
                 )
         first = h[0]
         return first[1:] if first[0] - t <= max_age_s else None
+
+
+def euler_rates(
+    roll: float, pitch: float, body_rates: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Rates of (roll, pitch, yaw) (rad/s) from the body rates ``(p, q, r)`` (rad/s, FRD)
+    at that attitude (ZYX Euler angles; singular at pitch +-90 deg, where the yaw rate is
+    taken as ``r``)."""
+    p, q, r = body_rates
+    sr, cr = math.sin(roll), math.cos(roll)
+    cp = math.cos(pitch)
+    if abs(cp) < 1e-3:
+        return (p, q, r)
+    tp = math.sin(pitch) / cp
+    return (p + (q * sr + r * cr) * tp, q * cr - r * sr, (q * sr + r * cr) / cp)
+
+
+@dataclass
+class _Waiting:
+    """A bearing message waiting for the vehicle attitude of its time."""
+
+    t_boot_s: float
+    t_arrival_s: float
+    msg: Any
+    stage: Callable[..., None]
+    needs_attitude: bool
 
 
 @dataclass
@@ -204,6 +288,19 @@ class _Vehicle:
     skipped: Counter[str] = field(default_factory=Counter)
     #: the latest time_boot_ms per (message type, component): a repeat is a duplicate
     last_time_ms: dict[tuple[str, int], int] = field(default_factory=dict)
+    #: bearing messages waiting for the attitude of their time, in arrival order
+    waiting: deque[_Waiting] = field(default_factory=deque)
+    #: components found to be on the autopilot's clock
+    same_clock: set[Any] = field(default_factory=set)
+    #: the latest autopilot time seen (s) and its arrival time (s)
+    latest_boot: tuple[float, float] | None = None
+    #: mean drift (m/s) between LOCAL_POSITION_NED's position and integrated velocity, and
+    #: how many sparse intervals it has seen
+    drift: tuple[list[float], int] = field(default_factory=lambda: ([0.0, 0.0, 0.0], 0))
+
+
+class _Deferred(Exception):
+    """Raised by a handler whose message waits for the attitude of its time."""
 
 
 class Tracker:
@@ -223,6 +320,8 @@ class Tracker:
         self.used: Counter[str] = Counter()
         self.skipped: Counter[str] = Counter()
         self.events: Counter[str] = Counter()
+        #: ``(t_boot_s, sysid, event)`` of the latest events (resets, clock changes, ...)
+        self.event_log: deque[tuple[float, int, str]] = deque(maxlen=10_000)
         self._warned: Counter[str] = Counter()  # log rate limiting
         #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
         self._pending: dict[int, list[dict[str, Any]]] = {}
@@ -260,25 +359,48 @@ class Tracker:
         if veh is None:
             veh = self.vehicles[sysid] = _Vehicle(sysid)
         out: list[EstimateRecord] = []
+        stamp = getattr(msg, "time_boot_ms", None)
+        if stamp is not None:
+            key = (mtype, msg.get_srcComponent())
+            if veh.last_time_ms.get(key) == stamp:
+                dup = Skip("duplicate", f"{mtype} time_boot_ms {stamp} again")
+                self._count_skip(veh, mtype, dup)
+                return out
+            veh.last_time_ms[key] = stamp
+        self._guarded(veh, mtype, handler, t_arrival_s, msg, out)
+        if veh.waiting:
+            self._release(veh, t_arrival_s, out)
+        return out
+
+    def flush(self) -> list[EstimateRecord]:
+        """Process the bearings still waiting for an attitude (the end of a replay), with
+        the attitude extrapolated; returns their estimates."""
+        out: list[EstimateRecord] = []
+        for veh in self.vehicles.values():
+            while veh.waiting:
+                self._release(veh, math.inf, out)
+        return out
+
+    def _guarded(
+        self,
+        veh: _Vehicle,
+        mtype: str,
+        fn: Callable[..., None],
+        *args: Any,
+    ) -> None:
+        """Run a handler (or a waiting bearing's second stage) on ``veh``: a message that
+        cannot be used is counted by reason, never raised; one that waits counts nothing
+        yet."""
         try:
-            stamp = getattr(msg, "time_boot_ms", None)
-            if stamp is not None:
-                key = (mtype, msg.get_srcComponent())
-                if veh.last_time_ms.get(key) == stamp:
-                    raise Skip("duplicate", f"{mtype} time_boot_ms {stamp} again")
-                veh.last_time_ms[key] = stamp
-            handler(veh, t_arrival_s, msg, out)
+            fn(veh, *args)
+        except _Deferred:
+            return
         except Skip as s:
-            self.skipped[s.reason] += 1
-            veh.skipped[s.reason] += 1
-            n = veh.skipped[s.reason]
-            if n in (1, 10, 100) or n % 10_000 == 0:
-                log.info("vehicle %d: %s skipped as %s (%d so far): %s",
-                         sysid, mtype, s.reason, n, s)  # fmt: skip
+            self._count_skip(veh, mtype, s)
         except MavObserverError as exc:
             self.skipped["invalid"] += 1
             veh.skipped["invalid"] += 1
-            log.debug("vehicle %d: %s refused: %s", sysid, mtype, exc)
+            log.debug("vehicle %d: %s refused: %s", veh.sysid, mtype, exc)
         except (AttributeError, TypeError, ValueError, ArithmeticError) as exc:
             # a message missing a field or carrying nonsense the checks did not foresee
             self.skipped["malformed"] += 1
@@ -288,14 +410,81 @@ class Tracker:
             if self._warned[key] in (1, 10, 100) or self._warned[key] % 1000 == 0:
                 log.warning(
                     "vehicle %d: malformed %s skipped (%d so far): %r",
-                    sysid,
+                    veh.sysid,
                     mtype,
                     self._warned[key],
                     exc,
                 )
         else:
             self.used[mtype] += 1
-        return out
+
+    def _note(self, veh: _Vehicle, event: str) -> None:
+        """Count an event and log when it happened (the vehicle's latest autopilot time)."""
+        self.events[event] += 1
+        t = veh.latest_boot[0] if veh.latest_boot is not None else math.nan
+        self.event_log.append((t, veh.sysid, event))
+
+    def _count_skip(self, veh: _Vehicle, mtype: str, s: Skip) -> None:
+        self.skipped[s.reason] += 1
+        veh.skipped[s.reason] += 1
+        n = veh.skipped[s.reason]
+        if n in (1, 10, 100) or n % 10_000 == 0:
+            log.info("vehicle %d: %s skipped as %s (%d so far): %s",
+                     veh.sysid, mtype, s.reason, n, s)  # fmt: skip
+
+    # -- bearings that wait for the attitude of their time ----------------------------
+    def _when_attitude(
+        self,
+        veh: _Vehicle,
+        tb: float,
+        t_arrival: float,
+        msg: Any,
+        out: list[EstimateRecord],
+        stage: Callable[..., None],
+        needs_attitude: bool,
+    ) -> None:
+        """Run ``stage(veh, tb, t_arrival, msg, out)`` now, or queue it until the vehicle
+        attitude at ``tb`` is known (the ATTITUDE of that time has arrived): a bearing from a
+        gimbal or camera that is its own component often arrives first. Bearings keep their
+        order: one that needs no attitude waits behind those that do."""
+        if veh.waiting or (needs_attitude and self._attitude_ahead(veh, tb)):
+            if len(veh.waiting) >= MAX_WAITING:
+                self._release(veh, math.inf, out, at_most=1)
+            veh.waiting.append(_Waiting(tb, t_arrival, msg, stage, needs_attitude))
+            raise _Deferred
+        stage(veh, tb, t_arrival, msg, out)
+
+    def _attitude_ahead(self, veh: _Vehicle, tb: float) -> bool:
+        """True if a bearing at ``tb`` should wait: the attitude stream exists and has not
+        reached ``tb`` yet."""
+        latest = veh.attitude.latest_t_s
+        return self.config.attitude_wait_s > 0.0 and latest is not None and latest < tb
+
+    def _release(
+        self, veh: _Vehicle, t_arrival: float, out: list[EstimateRecord], at_most: int = 0
+    ) -> None:
+        """Run the waiting bearings whose attitude has arrived, or that have waited
+        ``attitude_wait_s`` (arrival time) or whose time the autopilot's clock has passed by
+        that much (then extrapolated); ``at_most`` > 0: release that many whatever."""
+        wait = self.config.attitude_wait_s
+        latest = veh.attitude.latest_t_s
+        ap = veh.latest_boot[0] if veh.latest_boot is not None else -math.inf
+        done = 0
+        while veh.waiting:
+            w = veh.waiting[0]
+            ready = not w.needs_attitude or latest is None or latest >= w.t_boot_s
+            forced = at_most > 0 and done < at_most
+            if not ready and not forced:
+                timed_out = t_arrival - w.t_arrival_s > wait or ap - w.t_boot_s > wait
+                if not timed_out:
+                    return
+            veh.waiting.popleft()
+            done += 1
+            if not ready:
+                self._note(veh, "attitude_extrapolated")
+            self._guarded(veh, type_key(w.msg), w.stage, w.t_boot_s, w.t_arrival_s, w.msg, out)
+            if at_most and done >= at_most:
+                return
 
     # -- time -------------------------------------------------------------------------
     def _timed(self, veh: _Vehicle, key: Any, boot_s: float, arrival: float) -> float:
@@ -314,20 +503,43 @@ class Tracker:
                 self._reboot(veh, event)
                 veh.clocks[key] = clock  # keep the restarted mapping
             else:
-                self.events[f"clock_restart_{key}"] += 1
+                self._note(veh, f"clock_restart_{key}")
+                veh.same_clock.discard(key)
         if is_autopilot:
+            lb = veh.latest_boot
+            if lb is None or boot_s >= lb[0]:
+                veh.latest_boot = (boot_s, arrival)
+            return boot_s
+        if key in veh.same_clock:
             return boot_s
         ap = veh.clocks.get(veh.autopilot_compid)
         if ap is None or ap.offset_s is None:
             raise Skip("no_time_base", "no autopilot clock yet")
+        if abs(clock.offset_s - ap.offset_s) <= SAME_CLOCK_TOL_S:  # type: ignore[operator]
+            # its time_boot_ms agrees with the autopilot's (ArduPilot stamps its own gimbal
+            # messages so; a companion synchronised by MAVLink's TIMESYNC): use it as it is,
+            # from now on, so that the tlog's timestamp jitter and jumps cannot move it
+            veh.same_clock.add(key)
+            self._note(veh, "component_on_autopilot_clock")
+            return boot_s
         return ap.to_boot(clock.to_arrival(boot_s))
 
     def _untimed(self, veh: _Vehicle, arrival: float) -> float:
-        """A message with no time field: its arrival time on the autopilot clock."""
+        """A message with no time field: its arrival time on the autopilot clock, through
+        the autopilot clock's latency-free offset; where that disagrees by more than 0.5 s
+        with the time since the latest autopilot message (the arrival clock jumped: a tlog
+        written across a clock change), from the latest autopilot message instead."""
         ap = veh.clocks.get(veh.autopilot_compid)
-        if ap is None or ap.offset_s is None:
+        if ap is None or ap.offset_s is None or veh.latest_boot is None:
             raise Skip("no_time_base", "no autopilot clock yet")
-        return ap.to_boot(arrival)
+        tb = ap.to_boot(arrival)
+        boot_l, arr_l = veh.latest_boot
+        since = arrival - arr_l
+        if abs(tb - (boot_l + since)) <= 0.5:
+            return tb
+        if -0.5 <= since <= 2.0:
+            return boot_l + max(since, 0.0)
+        raise Skip("time_jump", f"arrival {arrival:.3f} s is {since:.1f} s from the autopilot's")
 
     def _claim_autopilot(self, veh: _Vehicle, compid: int) -> None:
         if veh.autopilot_compid is None:
@@ -343,7 +555,7 @@ class Tracker:
             how,
             len(veh.observers),
         )
-        self.events[f"autopilot_{event}"] += 1
+        self._note(veh, f"autopilot_{event}")
         keep = veh.autopilot_compid
         fresh = _Vehicle(veh.sysid, autopilot_compid=keep, skipped=veh.skipped)
         if self._pending.pop(veh.sysid, None):
@@ -372,6 +584,7 @@ class Tracker:
         if max(map(abs, vel)) > MAX_SPEED_MPS or max(map(abs, pos)) > MAX_LOCAL_POSITION_M:
             raise Skip("out_of_range", f"LOCAL_POSITION_NED position {pos} velocity {vel}")
         tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        mean_v = self._interval_mean_velocity(veh, tb, pos, vel)
         veh.position = (tb, pos, vel)
         v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)
         veh.velocity = (tb, v)
@@ -379,7 +592,7 @@ class Tracker:
             self._resume_saved(veh, self._pending.pop(veh.sysid))
         for obs, _ in veh.observers.values():
             try:
-                obs._update_velocity_trusted(tb, v)
+                obs.update_velocity_values(tb, v, mean_v)
             except InvalidSampleError as exc:
                 self.skipped["refused_velocity"] += 1
                 veh.skipped["refused_velocity"] += 1
@@ -396,12 +609,54 @@ class Tracker:
                 out,
             )
 
+    def _interval_mean_velocity(
+        self, veh: _Vehicle, tb: float, pos: Vec3, vel: Vec3
+    ) -> list[float] | None:
+        """The mean of the paper's ``v`` since the previous LOCAL_POSITION_NED, from the
+        change of its position, when the two are :data:`SPARSE_VELOCITY_S` or more apart
+        (``docs/frames.md``, "Sparse velocity"); else ``None`` (the velocity samples are
+        interpolated linearly).
+
+        LOCAL_POSITION_NED's x, y, z are the integral of the autopilot's velocity estimate,
+        kept true by its GNSS or other position fixes: over a second of turning flight they
+        give the displacement where two velocity samples a second apart do not. The mean
+        drift between the two (a constant velocity error, ``a``'s business) is kept out: the
+        displacement used is the position's change less ``drift * dt``, the drift being
+        the average of ``(dp - trapezoid(u)) / dt`` (time constant :data:`DRIFT_TAU_S`). An
+        interval whose position jumps (an EKF reset: more than ``0.5 m + 5 m/s^2 dt^2`` off
+        the velocity's trapezoid, drift removed) keeps the velocity and is counted as
+        ``position_reset``."""
+        prev = veh.position
+        if prev is None:
+            return None
+        t0, p0, u0 = prev
+        dt = tb - t0
+        if not SPARSE_VELOCITY_S <= dt <= SPARSE_VELOCITY_MAX_S:
+            return None
+        drift, n = veh.drift
+        resid = [(pos[j] - p0[j]) - 0.5 * (u0[j] + vel[j]) * dt for j in range(3)]
+        dev = [resid[j] / dt - drift[j] for j in range(3)]  # m/s off the mean drift
+        off = math.sqrt(sum(d * d for d in dev)) * dt
+        gate = 0.5 + 5.0 * dt * dt
+        w = max(dt / DRIFT_TAU_S, 1.0 / (n + 1))
+        # the drift learns from every interval, a jump's share clipped to the gate (so a
+        # reset moves it little and a large constant error is still learnt)
+        clip = min(1.0, gate / off) if off > 0.0 else 1.0
+        veh.drift = ([drift[j] + w * clip * dev[j] for j in range(3)], n + 1)
+        if off > gate:
+            self._note(veh, "position_reset")
+            return None
+        drift = veh.drift[0]
+        # v = -u: minus the mean measured velocity, (dp - drift dt) / dt
+        return [-((pos[j] - p0[j]) / dt - drift[j]) for j in range(3)]
+
     def _on_attitude(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         comp = msg.get_srcComponent()
         self._claim_autopilot(veh, comp)
         adapters.check_attitude(msg.roll, msg.pitch, msg.yaw)
         tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
-        veh.attitude.add(tb, msg.roll, msg.pitch, msg.yaw)
+        rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+        veh.attitude.add(tb, msg.roll, msg.pitch, msg.yaw, rates)
 
     def _on_attitude_quaternion(
         self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
@@ -410,7 +665,8 @@ class Tracker:
         self._claim_autopilot(veh, comp)
         q = adapters.check_quaternion((msg.q1, msg.q2, msg.q3, msg.q4))
         tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
-        veh.attitude.add(tb, *euler_from_dcm(quat_to_dcm(q)))
+        rates = (msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+        veh.attitude.add(tb, *euler_from_dcm(quat_to_dcm(q)), rates)
 
     def _vehicle_attitude(self, veh: _Vehicle, tb: float) -> tuple[float, float, float] | None:
         return veh.attitude.at(tb, self.config.max_attitude_age_s)
@@ -424,6 +680,14 @@ class Tracker:
     # -- bearings ---------------------------------------------------------------------
     def _on_gimbal(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
+        needs = self.config.gimbal_angles == "body" or adapters.gimbal_needs_vehicle_yaw(
+            msg.flags, getattr(msg, "delta_yaw", math.nan)
+        )
+        self._when_attitude(veh, tb, t, msg, out, self._gimbal_at, needs)
+
+    def _gimbal_at(
+        self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
         att = self._vehicle_attitude(veh, tb)
         q = tuple(msg.q)
         delta_yaw = getattr(msg, "delta_yaw", math.nan)
@@ -454,6 +718,12 @@ class Tracker:
         self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
     ) -> None:
         tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
+        needs = not math.isfinite(getattr(msg, "yaw_absolute", math.nan))
+        self._when_attitude(veh, tb, t, msg, out, self._mount_orientation_at, needs)
+
+    def _mount_orientation_at(
+        self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
         att = self._vehicle_attitude(veh, tb)
         yaw_abs = getattr(msg, "yaw_absolute", math.nan)
         direction = adapters.mount_orientation_direction(
@@ -469,6 +739,12 @@ class Tracker:
         self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
     ) -> None:
         tb = self._untimed(veh, t)
+        needs = self.config.mount_status_yaw == "vehicle"
+        self._when_attitude(veh, tb, t, msg, out, self._mount_status_at, needs)
+
+    def _mount_status_at(
+        self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
         att = self._vehicle_attitude(veh, tb)
         direction = adapters.mount_status_direction(
             msg.pointing_a,
@@ -513,6 +789,12 @@ class Tracker:
     ) -> None:
         adapters.tracking_status_usable(msg.tracking_status)
         tb = self._untimed(veh, t)
+        # waits behind the gimbal message it goes with, if that one waits
+        self._when_attitude(veh, tb, t, msg, out, self._camera_tracking_at, False)
+
+    def _camera_tracking_at(
+        self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
         hfov, vfov = self._fov(veh, msg.get_srcComponent())
         ray = adapters.tracking_ray(msg.point_x, msg.point_y, hfov, vfov)
         cam = veh.camera_attitude
@@ -536,6 +818,11 @@ class Tracker:
             tb = self._untimed(veh, msg.time_usec * 1e-6)
         else:
             tb = self._timed(veh, ("landing_target", comp), msg.time_usec * 1e-6, t)
+        self._when_attitude(veh, tb, t, msg, out, self._landing_target_at, True)
+
+    def _landing_target_at(
+        self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
         att = self._vehicle_attitude(veh, tb)
         pos = None
         if veh.position is not None and abs(veh.position[0] - tb) <= POSITION_MAX_AGE_S:
@@ -577,12 +864,12 @@ class Tracker:
         if entry is None:
             obs = BiasObserver(self.config.observer)
             if veh.velocity is not None:
-                obs._update_velocity_trusted(*veh.velocity)
+                obs.update_velocity_values(*veh.velocity)
             veh.observers[target] = entry = (obs, source)
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
         try:
-            est = entry[0]._update_bearing_trusted(tb, y)
+            est = entry[0].update_bearing_values(tb, y)
         except InvalidSampleError as exc:
             raise Skip("refused_bearing", str(exc)) from exc
         if not entry[0].started:  # no velocity yet: the bearing waits, nothing to report
@@ -687,7 +974,7 @@ class Tracker:
                 log.warning(
                     "vehicle %d: saved observer %r discarded (%s)", veh.sysid, e["target"], why
                 )
-                self.events["restore_discarded"] += 1
+                self._note(veh, "restore_discarded")
                 continue
             if e["target"] in veh.observers:
                 continue  # a live observer already took its place
@@ -699,7 +986,7 @@ class Tracker:
             dx = [p_c[j] - pos[j] for j in range(3)]  # x = target - vehicle: minus its move
             obs.resume(tb, dx, [-vel[0], -vel[1], -vel[2]])
             veh.observers[e["target"]] = (obs, e["source"])
-            self.events["restored"] += 1
+            self._note(veh, "restored")
             log.info(
                 "vehicle %d: restored observer %r (%s), %.1f s of vehicle time after it was "
                 "saved, vehicle moved %.1f m since",
