@@ -195,8 +195,7 @@ class Service:
         sysid = msg.get_srcSystem()
         view = self.vehicles.get(sysid)
         if view is None:
-            veh = self.tracker.vehicles.get(sysid)
-            if veh is None or veh.autopilot_compid is None:
+            if not self.tracker.is_vehicle(sysid):
                 return  # not (yet) a vehicle: a ground station, a stray component
             view = self._new_vehicle(sysid, now)
         view.counts[type_key(msg)] += 1
@@ -285,7 +284,6 @@ class Service:
             k: round((c - view.counts_at_status.get(k, 0)) / span, 2)
             for k, c in sorted(view.counts.items())
         }
-        veh = self.tracker.vehicles.get(view.sysid)
         observers: dict[str, Any] = {}
         for name, tgt in sorted(view.targets.items()):
             rec = tgt.last_record
@@ -321,7 +319,7 @@ class Service:
             },
             "rates_hz": rates,
             "messages": sum(view.counts.values()),
-            "skipped": dict(sorted((veh.skipped if veh else Counter()).items())),
+            "skipped": dict(sorted(self.tracker.vehicle_skipped(view.sysid).items())),
             "link_skipped": {
                 k: v for k, v in sorted(self.tracker.skipped.items()) if k in _LINK_REASONS
             },

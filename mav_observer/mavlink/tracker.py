@@ -1006,6 +1006,17 @@ class Tracker:
             for name, (_, src) in veh.observers.items()
         }
 
+    def is_vehicle(self, sysid: int) -> bool:
+        """True once ``sysid`` has shown an autopilot (not a ground station or a stray
+        component)."""
+        veh = self.vehicles.get(sysid)
+        return veh is not None and veh.autopilot_compid is not None
+
+    def vehicle_skipped(self, sysid: int) -> dict[str, int]:
+        """Messages of vehicle ``sysid`` skipped so far, by reason."""
+        veh = self.vehicles.get(sysid)
+        return {} if veh is None else dict(veh.skipped)
+
     def observer(self, sysid: int, target: str) -> BiasObserver | None:
         veh = self.vehicles.get(sysid)
         entry = None if veh is None else veh.observers.get(target)
