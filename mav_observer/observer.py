@@ -391,8 +391,8 @@ class BiasObserver:
         self._kf_out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._kf_tb: float | None = None
         self._vel_dt = 0.05
-        #: velocity sample time -> shift (m/s) of the interpolation on the interval that
-        #: ends at it (see :meth:`update_velocity_values`)
+        #: velocity sample time -> the mean velocity (m/s) over the interval that ends at it
+        #: (see :meth:`update_velocity_values`)
         self._vel_shift: dict[float, list[float]] = {}
         self._counts = {"velocity": 0, "bearing": 0}
 
@@ -522,15 +522,12 @@ class BiasObserver:
         ``interval_mean_mps``: the mean of ``v`` (m/s, the paper's sign) over the interval
         from the previous velocity sample to this one, when it is known better than the
         average of the two samples (for a vehicle, from the change of its position: see
-        ``docs/frames.md``, "Sparse velocity"). The velocity on that interval is then the
-        linear interpolation shifted by a constant so that its integral is exact."""
+        ``docs/frames.md``, "Sparse velocity"). The velocity on that interval is then that
+        mean, constant (a straight line between the two positions)."""
         buf = self._velocities
         self._accept(buf, "velocity", t_s, v_mps, refuse_late=False)
         if interval_mean_mps is not None and len(buf) >= 2 and buf[-2][0] < t_s:
-            p = buf[-2][1]
-            self._vel_shift[t_s] = [
-                m - 0.5 * (a + b) for m, a, b in zip(interval_mean_mps, p, v_mps, strict=True)
-            ]
+            self._vel_shift[t_s] = list(interval_mean_mps)
 
     def update_bearing_values(self, t_s: float, y: list[float]) -> Estimate:
         """:meth:`update_bearing` for a caller that already checked the sample (finite
@@ -688,10 +685,9 @@ class BiasObserver:
         if p is None:
             return (q if q is not None else self._velocities[0])[1]
         if q is not None:
-            shift = self._vel_shift.get(q[0]) if self._vel_shift else None
-            if shift is not None:  # the interval's mean is known: keep its integral exact
-                v = self._lerp(p, q, t)
-                return [c + d for c, d in zip(v, shift, strict=True)]
+            mean = self._vel_shift.get(q[0]) if self._vel_shift else None
+            if mean is not None:  # the interval's mean is known (from the positions)
+                return mean
             if cfg.interpolation == "linear" and q[0] - p[0] <= cfg.max_velocity_age_s:
                 return self._lerp(p, q, t)
         return p[1]

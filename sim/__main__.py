@@ -7,6 +7,8 @@
   :mod:`sim.live`).
 * ``emit``: send a scenario as MAVLink (a vehicle and its gimbal or camera) to a pymavlink
   output string and/or a tlog, with the truth as JSON Lines.
+* ``inject``: add a synthetic bearing stream toward a fixed local NED point to a real tlog
+  (:mod:`sim.inject`), with the truth as JSON Lines.
 """
 
 from __future__ import annotations
@@ -147,6 +149,49 @@ def cmd_emit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        parts = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected N,E,D (three numbers), got {text!r}")
+    return parts  # type: ignore[return-value]
+
+
+def _target(text: str) -> tuple[float, float, float] | None:
+    return None if text == "auto" else _triple(text)
+
+
+def cmd_inject(args: argparse.Namespace) -> int:
+    from sim import inject
+
+    try:
+        cfg = inject.InjectConfig(
+            target_ned_m=args.target,
+            bearing=args.bearing,
+            rate_hz=args.rate_hz,
+            noise_deg=args.noise_deg,
+            vel_error_ned_mps=args.vel_error,
+            seed=args.seed,
+            sysid=args.sysid,
+            compid=args.compid,
+            gimbal_device_id=args.gimbal_device_id,
+        )
+        result = inject.inject_file(args.log, args.output, args.truth, cfg)
+    except (inject.InjectError, OSError) as exc:
+        print(f"python -m sim inject: {exc}", file=sys.stderr)
+        return 2
+    if args.target is None:
+        t = result.target_ned_m
+        print(f"target auto: [{t[0]:.2f}, {t[1]:.2f}, {t[2]:.2f}] m NED")
+    print(result.text())
+    if not result.injected:
+        print("python -m sim inject: no bearing could be injected", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m sim", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -203,6 +248,43 @@ def build_parser() -> argparse.ArgumentParser:
     em.add_argument("--latency-s", type=float, default=0.0, help="bearing stream latency")
     em.add_argument("--seed", type=int, default=0)
     em.set_defaults(func=cmd_emit)
+    inj = sub.add_parser(
+        "inject",
+        help="add a synthetic bearing stream toward a fixed local NED point to a real tlog",
+    )
+    inj.add_argument("log", help="the real tlog")
+    inj.add_argument(
+        "--target",
+        type=_target,
+        required=True,
+        help="N,E,D (m) in the LOCAL_POSITION_NED frame, or auto: median north and east of "
+        "the track, 2 m below its lowest point",
+    )
+    inj.add_argument("-o", "--output", required=True, help="the new tlog")
+    inj.add_argument("--truth", required=True, help="the truth, JSON Lines")
+    inj.add_argument(
+        "--bearing", default="gimbal", choices=("gimbal", "gimbal_earth", "landing_target")
+    )
+    inj.add_argument("--rate-hz", type=float, default=10.0, help="bearing rate")
+    inj.add_argument("--noise-deg", type=float, default=0.5, help="isotropic angular noise")
+    inj.add_argument(
+        "--vel-error",
+        type=_triple,
+        default=(0.0, 0.0, 0.0),
+        help="N,E,D (m/s) added to every LOCAL_POSITION_NED velocity (the truth's a)",
+    )
+    inj.add_argument("--seed", type=int, default=0)
+    inj.add_argument(
+        "--sysid", type=int, default=None, help="default: the vehicle sending LOCAL_POSITION_NED"
+    )
+    inj.add_argument("--compid", type=int, default=1, help="component of the injected frames")
+    inj.add_argument(
+        "--gimbal-device-id",
+        type=int,
+        default=1,
+        help="1: target 'gimbal'; N > 1: 'gimbalN' (when the log has its own gimbal)",
+    )
+    inj.set_defaults(func=cmd_inject)
     from sim import live
 
     live.add_parser(sub)

@@ -173,6 +173,8 @@ class AttitudeHistory:
     def __init__(self, maxlen: int = 128) -> None:
         self._h: deque[tuple[float, float, float, float]] = deque(maxlen=maxlen)
         self._rates: tuple[float, float, float] | None = None
+        #: the stream's typical interval (s), a running mean of the intervals up to 2 s
+        self.interval_s = 0.0
 
     @property
     def latest_t_s(self) -> float | None:
@@ -195,10 +197,13 @@ class AttitudeHistory:
             return  # older than what we have: keep the history ordered
         if h and t == h[-1][0]:
             h.pop()
+        if h and 0.0 < t - h[-1][0] <= 2.0:
+            dt = t - h[-1][0]
+            self.interval_s = dt if self.interval_s == 0.0 else 0.9 * self.interval_s + 0.1 * dt
         rates = None
         if body_rates is not None and all(map(math.isfinite, body_rates)) and any(body_rates):
             rates = euler_rates(roll, pitch, body_rates)
-        elif h and 0.0 < t - h[-1][0] <= 0.5:
+        elif h and 0.0 < t - h[-1][0] <= 2.0:
             a = h[-1]
             dt = t - a[0]
             rates = (
@@ -210,10 +215,11 @@ class AttitudeHistory:
         h.append((t, roll, pitch, yaw))
 
     def at(self, t: float, max_age_s: float) -> tuple[float, float, float] | None:
-        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped);
-        after the latest one, extrapolated with its rates for at most ``max_age_s`` (held
-        when no rate is known); else the nearest one within ``max_age_s``; ``None`` if there
-        is none."""
+        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped) when
+        they are at most ``2 max_age_s`` or 2.5 stream intervals apart (a 1 Hz ATTITUDE of an
+        old telemetry link is interpolated); after the latest one, extrapolated with its
+        rates for at most ``max_age_s`` (held when no rate is known); else the nearest one
+        within ``max_age_s``; ``None`` if there is none."""
         h = self._h
         if not h:
             return None
@@ -230,7 +236,7 @@ class AttitudeHistory:
             a = h[i]
             if a[0] <= t:
                 b = h[i + 1]
-                if b[0] - a[0] > 2 * max_age_s:
+                if b[0] - a[0] > max(2 * max_age_s, 2.5 * self.interval_s):
                     near = a if t - a[0] <= b[0] - t else b
                     return near[1:] if abs(near[0] - t) <= max_age_s else None
                 f = (t - a[0]) / (b[0] - a[0])
@@ -466,7 +472,11 @@ class Tracker:
         """Run the waiting bearings whose attitude has arrived, or that have waited
         ``attitude_wait_s`` (arrival time) or whose time the autopilot's clock has passed by
         that much (then extrapolated); ``at_most`` > 0: release that many whatever."""
+        # a sparse attitude stream (1 Hz on an old telemetry link) is waited for longer:
+        # 1.5 of its intervals, up to 2 s
         wait = self.config.attitude_wait_s
+        if wait > 0.0:
+            wait = max(wait, min(2.0, 1.5 * veh.attitude.interval_s))
         latest = veh.attitude.latest_t_s
         ap = veh.latest_boot[0] if veh.latest_boot is not None else -math.inf
         done = 0

@@ -1,0 +1,196 @@
+"""Real flight logs with synthetic bearings: the product against the offline optimum.
+
+``python -m bench.accuracy.reallogs [LOG.tlog ...] [--seeds N] [--noise-deg D]
+[--vel-error N,E,D] [--settings FILE] [--json F]``
+
+For every log (default: every shared log in ``../shared/tlogs`` with LOCAL_POSITION_NED):
+
+1. ``sim.inject`` adds a gimbal bearing stream toward a fixed point of the autopilot's local
+   frame (``--target auto``: under the middle of the flight, 2 m below its lowest point), with
+   isotropic noise and a wind-like error added to LOCAL_POSITION_NED's velocity, and writes
+   the truth;
+2. the product replays the new log (:func:`mav_observer.replay.replay`, default settings unless
+   ``--settings`` names a settings file's ``[observer]`` table);
+3. the same bearings and the log's own LOCAL_POSITION_NED go to the batch least-squares fit
+   over the whole log (:func:`mav_observer.batch.fit_batch`, told the true noise): the best
+   the data allows;
+4. both are scored against the truth over the last third of the injected span: position RMS
+   relative to the range (RMS of ``|error| / range``), and the ratio of the two.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+import tomllib
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mav_observer.batch import displacement_at, fit_batch
+from mav_observer.mavlink.tracker import TrackerConfig
+from mav_observer.observer import ObserverConfig
+from mav_observer.replay import ReplayError, replay
+from sim import inject as inj
+
+ROOT = Path(__file__).resolve().parents[2]
+TLOGS = ROOT.parent / "shared" / "tlogs"
+
+
+def shared_logs() -> list[Path]:
+    """Every shared log with LOCAL_POSITION_NED (the others cannot carry an injection)."""
+    out = []
+    for p in sorted(TLOGS.glob("*.tlog")):
+        recs = inj.split_records(p.read_bytes())
+        if inj.vehicles_with_local_position(recs):
+            out.append(p)
+    return out
+
+
+def _last_third(t: np.ndarray, t0: float, t1: float) -> np.ndarray:
+    return t >= t0 + 2.0 * (t1 - t0) / 3.0
+
+
+def run_log(
+    log: Path,
+    *,
+    seed: int = 0,
+    noise_deg: float = 0.5,
+    vel_error: tuple[float, float, float] = (2.0, -1.0, 0.0),
+    observer: dict[str, Any] | None = None,
+    workdir: Path | None = None,
+) -> dict[str, Any]:
+    """Inject, replay, fit and score one log."""
+    records = inj.split_records(log.read_bytes())
+    # a log with a gimbal of its own gets the injected one as a second gimbal device
+    probe = inj.InjectConfig(target_ned_m=None, noise_deg=noise_deg, seed=seed)
+    sysid = max(inj.vehicles_with_local_position(records).items(), key=lambda kv: kv[1])[0][0]
+    dev = 2 if inj.same_target_frames(records, sysid, probe) else 1
+    cfg = inj.InjectConfig(
+        target_ned_m=None,
+        noise_deg=noise_deg,
+        vel_error_ned_mps=vel_error,
+        seed=seed,
+        gimbal_device_id=dev,
+    )
+    res = inj.inject(records, cfg)
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        path = Path(tmp) / "injected.tlog"
+        path.write_bytes(b"".join(res.records))
+        out = Path(tmp) / "est.jsonl"
+        t_wall = time.perf_counter()
+        tc = TrackerConfig(observer=ObserverConfig(**(observer or {})))
+        try:
+            summary = replay(str(path), tracker_config=tc, output_jsonl=out)
+            events = dict(summary.events)
+        except ReplayError as exc:
+            events = {"replay_error": str(exc)}
+        replay_s = time.perf_counter() - t_wall
+        est = [json.loads(x) for x in out.read_text().splitlines() if x.strip()]
+        flight = inj.read_flight(inj.split_records(path.read_bytes()), sysid=res.sysid)
+    est = [r for r in est if r["sysid"] == res.sysid and r["target"] == res.target]
+    truth = res.truth
+    # the epoch with most bearings (a log whose clock restarts has several)
+    epochs = [d.get("epoch", 0) for d in truth]
+    ep = max(set(epochs), key=epochs.count)
+    truth = [d for d in truth if d.get("epoch", 0) == ep]
+    tt = np.array([d["t_boot_s"] for d in truth])
+    xt = np.array([d["rel_pos_ned_m"] for d in truth])
+    yt = np.array([d["bearing_ned"] for d in truth])
+    t0, t1 = float(tt[0]), float(tt[-1])
+    sel_t = _last_third(tt, t0, t1)
+    rng_t = np.linalg.norm(xt, axis=1)
+
+    # the product
+    te = np.array([r["t_boot_s"] for r in est]) if est else np.zeros(0)
+    inside = (te >= t0) & (te <= t1)
+    te = te[inside]
+    xe = np.array([r["rel_pos_ned_m"] for r in est], dtype=float).reshape(-1, 3)[inside]
+    xi = np.column_stack([np.interp(te, tt, xt[:, i]) for i in range(3)])
+    rel = np.linalg.norm(xe - xi, axis=1) / np.linalg.norm(xi, axis=1)
+    sel_e = _last_third(te, t0, t1)
+    prod = math.sqrt(float(np.mean(rel[sel_e] ** 2))) if sel_e.any() else math.inf
+    prod_max = float(np.max(rel[sel_e])) if sel_e.any() else math.inf
+
+    # the batch optimum over the same bearings and velocity
+    lpn = flight.local_position[ep]
+    d = displacement_at(tt, lpn.t_boot_s, lpn.values[:, 3:6], lpn.values[:, :3])
+    fit = fit_batch(tt, yt, d, sigma_rad=math.radians(max(noise_deg, 0.01)))
+    xb = fit.rel_pos_at()
+    rel_b = np.linalg.norm(xb - xt, axis=1) / rng_t
+    batch = math.sqrt(float(np.mean(rel_b[sel_t] ** 2)))
+    return {
+        "log": log.name,
+        "seed": seed,
+        "sysid": res.sysid,
+        "target": res.target,
+        "injected": res.injected,
+        "lpn_hz": res.lpn_rate_hz,
+        "range_m": [float(np.min(rng_t)), float(np.max(rng_t))],
+        "range_last_third_m": float(np.mean(rng_t[sel_t])),
+        "product_rel_rms": prod,
+        "product_rel_max": prod_max,
+        "batch_rel_rms": batch,
+        "ratio": prod / batch if batch > 0 else math.inf,
+        "estimates": len(est),
+        "events": events,
+        "replay_s": replay_s,
+    }
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        "| log | LPN rate | range (last third) | product: position RMS / range | "
+        "batch least squares | product / batch | worst, last third |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['log']} (seed {r['seed']}) | {r['lpn_hz']:.1f} Hz "
+            f"| {r['range_last_third_m']:.1f} m | {100 * r['product_rel_rms']:.2f} % "
+            f"| {100 * r['batch_rel_rms']:.2f} % | {r['ratio']:.2f}x "
+            f"| {100 * r['product_rel_max']:.1f} % |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.accuracy.reallogs", description=__doc__)
+    p.add_argument("logs", nargs="*", type=Path, help="default: the shared logs with LPN")
+    p.add_argument("--seeds", type=int, default=1)
+    p.add_argument("--noise-deg", type=float, default=0.5)
+    p.add_argument("--vel-error", default="2,-1,0", help="N,E,D m/s added to the velocity")
+    p.add_argument("--settings", type=Path, help="a settings file: its [observer] table")
+    p.add_argument("--json", type=Path)
+    args = p.parse_args(argv)
+    logs = args.logs or shared_logs()
+    vel = tuple(float(v) for v in args.vel_error.split(","))
+    observer = None
+    if args.settings:
+        observer = tomllib.loads(args.settings.read_text()).get("observer", {})
+    rows = []
+    t0 = time.perf_counter()
+    for log in logs:
+        for seed in range(args.seeds):
+            r = run_log(log, seed=seed, noise_deg=args.noise_deg, vel_error=vel, observer=observer)
+            rows.append(r)
+            print(
+                f"{log.name} seed {seed}: product {100 * r['product_rel_rms']:.2f} % of range, "
+                f"batch {100 * r['batch_rel_rms']:.2f} %, events {r['events']}",
+                file=sys.stderr,
+            )
+    print(table(rows))
+    print(f"{len(rows)} runs in {time.perf_counter() - t0:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
