@@ -36,6 +36,24 @@ from mav_observer.samples import Estimate
 
 SCHEMA_VERSION = 1
 
+#: Version and top-level keys of a vehicle's status document (``docs/schema.md``, "The
+#: status"), published by the service beside the estimate records.
+STATUS_SCHEMA = 1
+STATUS_KEYS = (
+    "schema",
+    "t_unix_s",
+    "sysid",
+    "service",
+    "link",
+    "rates_hz",
+    "messages",
+    "skipped",
+    "link_skipped",
+    "bearing_sources",
+    "observers",
+    "events",
+)
+
 CSV_COLUMNS = (
     "t_unix_s",
     "t_boot_s",

@@ -39,13 +39,12 @@ from mav_observer.mavlink import signing
 from mav_observer.mavlink.connection import ConnectionReader
 from mav_observer.mavlink.dialect import type_key
 from mav_observer.mavlink.tracker import Tracker
-from mav_observer.records import EstimateRecord
+from mav_observer.records import STATUS_SCHEMA, EstimateRecord
 from mav_observer.settings import Settings
 from mav_observer.zenoh_io import Publications
 
 log = logging.getLogger(__name__)
 
-STATUS_SCHEMA = 1
 STALE = "stale"
 UP = "up"
 
@@ -300,7 +299,7 @@ class Service:
                 "estimates": tgt.estimates,
                 "published": tgt.published,
             }
-        return {
+        doc = {
             "schema": STATUS_SCHEMA,
             "t_unix_s": self.clock(),
             "sysid": view.sysid,
@@ -327,6 +326,7 @@ class Service:
             "observers": observers,
             "events": dict(sorted(self.tracker.events.items())),
         }
+        return doc
 
     def _publish_status(self, view: _VehicleView, now: float, *, final: bool = False) -> None:
         doc = self.status_document(view, now, final=final)

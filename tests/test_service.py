@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
+from mav_observer import records, statefile
 from mav_observer import settings as st
-from mav_observer import statefile
 from mav_observer.mavlink.dialect import codec
 from mav_observer.service import Service
 from sim import scenarios
@@ -133,7 +133,8 @@ def test_status_document_reports_rates_sources_and_observers() -> None:
     svc.run(duration_s=20.0)
     assert len(pubs.statuses) >= 15  # 1 Hz
     sysid, doc = pubs.statuses[10]
-    assert sysid == 1 and doc["sysid"] == 1 and doc["schema"] == 1
+    assert sysid == 1 and doc["sysid"] == 1 and doc["schema"] == records.STATUS_SCHEMA
+    assert tuple(doc) == records.STATUS_KEYS  # the schema beside the estimate's
     assert doc["link"]["state"] == "up"
     # the emitter's rates: attitude 20 Hz, position 10 Hz, bearing 10 Hz, heartbeat 1 Hz
     assert doc["rates_hz"]["ATTITUDE"] == pytest.approx(20.0, rel=0.15)
