@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from mav_observer import __version__
-from mav_observer.errors import MavObserverError
+from mav_observer.errors import ConfigError, MavObserverError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -62,27 +62,12 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--truth", type=Path, help="the emitter's truth file (JSON Lines): errors too")
     rp.add_argument("--summary-json", type=Path, help="write the summary as JSON")
     rp.add_argument(
-        "--sources",
-        default="auto",
-        help="bearing sources, comma separated: auto, gimbal, camera, mount, mount_status, "
-        "landing_target, home (synthetic, for validation)",
+        "--config",
+        type=Path,
+        help="settings file (TOML), the same as run's: its [observer] and [tracker] tables "
+        "are used, the service-only ones checked and ignored",
     )
-    rp.add_argument(
-        "--gimbal-angles",
-        choices=("flags", "body"),
-        default="flags",
-        help="gimbal quaternion: as its flags say, or relative to the body (servo mounts)",
-    )
-    rp.add_argument("--mount-status-yaw", choices=("vehicle", "earth"), default="vehicle")
-    rp.add_argument("--landing-target-orientation", choices=("down", "forward"), default="down")
-    rp.add_argument("--landing-target-yaw-align-deg", type=float, default=0.0)
-    rp.add_argument("--camera-fov-deg", type=float, nargs=2, metavar=("H", "V"))
-    rp.add_argument("--sysid", type=int, action="append", help="only this vehicle (repeatable)")
-    rp.add_argument("--k", type=float, help="observer gain k (1/s)")
-    rp.add_argument("--k-star", type=float, help="observer gain k* (1/s)")
-    rp.add_argument(
-        "--initial-range-m", type=float, help="start on the first bearing at this range"
-    )
+    add_estimation_flags(rp)
     rp.add_argument("--duration", type=float, help="seconds to read a live connection")
     rp.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no summary")
     _add_run_parser(sub)
@@ -123,12 +108,7 @@ def _add_run_parser(sub: Any) -> None:
         "--signing-key-file",
         help="MAVLink 2 signing: a file holding the key (64 hex digits) or a passphrase",
     )
-    run.add_argument("--sources", help="bearing sources, comma separated (default auto)")
-    run.add_argument("--gimbal-angles", choices=("flags", "body"))
-    run.add_argument("--sysid", type=int, action="append", help="only this vehicle (repeatable)")
-    run.add_argument("--k", type=float, help="observer gain k (1/s)")
-    run.add_argument("--k-star", type=float, help="observer gain k* (1/s)")
-    run.add_argument("--initial-range-m", type=float, help="first range guess (m)")
+    add_estimation_flags(run)
     run.add_argument("--duration", type=float, help="stop after this many seconds")
     run.add_argument(
         "--log-level", dest="run_log_level", choices=("DEBUG", "INFO", "WARNING", "ERROR")
@@ -162,9 +142,68 @@ def _add_listen_parser(sub: Any) -> None:
     ls.add_argument("--duration", type=float, help="stop after this many seconds")
 
 
+#: The observer flags of run and replay: ``(flag, settings key, type, help)``. A flag for
+#: the estimator not chosen is an error (:func:`mav_observer.settings.check_estimator_keys`).
+OBSERVER_FLAGS = (
+    ("--estimator", "estimator", str, "riccati (default) or paper"),
+    ("--bearing-noise-deg", "bearing_noise_deg", float, "bearing noise, 1 sigma (deg; riccati)"),
+    ("--velocity-noise-mps", "velocity_noise_mps", float, "velocity noise (m/s; riccati)"),
+    ("--bias-walk", "bias_walk_mps_per_sqrt_s", float, "bias random walk (m/s/sqrt s; riccati)"),
+    ("--initial-range-m", "initial_range_m", float, "first range guess (m)"),
+    ("--k", "k_per_s", float, "gain k (1/s; paper)"),
+    ("--k-star", "k_star_per_s", float, "gain k* (1/s; paper)"),
+)
+
+
+def add_estimation_flags(p: argparse.ArgumentParser) -> None:
+    """The flags of the observer and tracker settings users tune, for run and replay (each
+    overrides the settings file's value; unset: the file's, else the default)."""
+    for flag, _key, typ, help_ in OBSERVER_FLAGS:
+        p.add_argument(flag, type=typ, help=help_)
+    p.add_argument(
+        "--sources",
+        help="bearing sources, comma separated: auto (default), gimbal, camera, mount, "
+        "mount_status, landing_target, home (synthetic, for validation)",
+    )
+    p.add_argument(
+        "--gimbal-angles",
+        choices=("flags", "body"),
+        help="gimbal quaternion: as its flags say (default), or relative to the body (servo "
+        "mounts)",
+    )
+    p.add_argument("--mount-status-yaw", choices=("vehicle", "earth"))
+    p.add_argument("--landing-target-orientation", choices=("down", "forward"))
+    p.add_argument("--landing-target-yaw-align-deg", type=float)
+    p.add_argument("--camera-fov-deg", type=float, nargs=2, metavar=("H", "V"))
+    p.add_argument("--sysid", type=int, action="append", help="only this vehicle (repeatable)")
+
+
+def estimation_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
+    """The observer and tracker flags given, as a settings layer."""
+    o: dict[str, dict[str, object]] = {}
+
+    def put(section: str, key: str, value: object) -> None:
+        if value is not None:
+            o.setdefault(section, {})[key] = value
+
+    for flag, key, _typ, _help in OBSERVER_FLAGS:
+        put("observer", key, getattr(args, flag.lstrip("-").replace("-", "_")))
+    if args.sources is not None:
+        put("tracker", "sources", [x.strip() for x in args.sources.split(",") if x.strip()])
+    put("tracker", "gimbal_angles", args.gimbal_angles)
+    put("tracker", "mount_status_yaw", args.mount_status_yaw)
+    put("tracker", "landing_target_orientation", args.landing_target_orientation)
+    put("tracker", "landing_target_yaw_align_deg", args.landing_target_yaw_align_deg)
+    if args.camera_fov_deg:
+        put("tracker", "camera_hfov_deg", args.camera_fov_deg[0])
+        put("tracker", "camera_vfov_deg", args.camera_fov_deg[1])
+    put("tracker", "sysids", args.sysid)
+    return o
+
+
 def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     """The ``run`` flags as a settings layer (only those given)."""
-    o: dict[str, dict[str, object]] = {}
+    o = estimation_overrides(args)
 
     def put(section: str, key: str, value: object) -> None:
         if value is not None:
@@ -180,13 +219,6 @@ def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     put("zenoh", "prefix", args.prefix)
     put("zenoh", "estimate_max_rate_hz", args.estimate_rate_hz)
     put("state", "file", args.state_file)
-    if args.sources is not None:
-        put("tracker", "sources", [x.strip() for x in args.sources.split(",") if x.strip()])
-    put("tracker", "gimbal_angles", args.gimbal_angles)
-    put("tracker", "sysids", args.sysid)
-    put("observer", "k_per_s", args.k)
-    put("observer", "k_star_per_s", args.k_star)
-    put("observer", "initial_range_m", args.initial_range_m)
     put("log", "level", args.run_log_level or args.log_level)
     return o
 
@@ -258,36 +290,12 @@ def cmd_listen(args: argparse.Namespace) -> int:
     return 0
 
 
-def _tracker_config(args: argparse.Namespace):
-    from mav_observer.mavlink.tracker import TrackerConfig
-    from mav_observer.observer import ObserverConfig
-
-    obs: dict[str, object] = {}
-    if args.k is not None:
-        obs["k_per_s"] = args.k
-    if args.k_star is not None:
-        obs["k_star_per_s"] = args.k_star
-    if args.initial_range_m is not None:
-        obs["initial_range_m"] = args.initial_range_m
-    fov = args.camera_fov_deg or (None, None)
-    return TrackerConfig(
-        sources=tuple(s.strip() for s in args.sources.split(",") if s.strip()),
-        gimbal_angles=args.gimbal_angles,
-        mount_status_yaw=args.mount_status_yaw,
-        landing_target_orientation=args.landing_target_orientation,
-        landing_target_yaw_align_deg=args.landing_target_yaw_align_deg,
-        camera_hfov_deg=fov[0],
-        camera_vfov_deg=fov[1],
-        sysids=tuple(args.sysid) if args.sysid else None,
-        observer=ObserverConfig(**obs),  # type: ignore[arg-type]
-    )
-
-
 def cmd_replay(args: argparse.Namespace) -> int:
     from mav_observer import replay as rp
+    from mav_observer import settings as st
     from mav_observer.report import plot_replay
 
-    cfg = _tracker_config(args)
+    cfg = st.resolve(args.config, estimation_overrides(args)).tracker_config()
     summary = rp.replay(
         args.source,
         tracker_config=cfg,
@@ -308,6 +316,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             title=Path(args.source).name,
             errors=errors,
             excitation_min=cfg.observer.excitation_min,
+            events=summary.event_log,
         )
     if not args.quiet:
         print(summary.text())
@@ -350,6 +359,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "listen":
             return cmd_listen(args)
+    except ConfigError as exc:  # a setting or flag that cannot be: a usage error
+        print(f"mav-observer: {exc}", file=sys.stderr)
+        return 2
     except MavObserverError as exc:
         summary = getattr(exc, "summary", None)
         if summary is not None and not getattr(args, "quiet", False):

@@ -137,6 +137,142 @@ def _prefix(v: object) -> str:
     return s
 
 
+#: Which estimator each observer setting belongs to (the others apply to both). A setting
+#: of the other estimator given in a settings file or on the command line is an error.
+ESTIMATOR_KEYS: dict[str, tuple[str, ...]] = {
+    "riccati": (
+        "bearing_noise_deg",
+        "velocity_noise_mps",
+        "bias_walk_mps_per_sqrt_s",
+        "hypotheses",
+        "range_span",
+    ),
+    "paper": ("k_per_s", "k_star_per_s", "static_hold", "hold_speed_mps", "hold_innovation_deg"),
+}
+OBSERVER_HELP = {
+    "estimator": "riccati (default) or paper",
+    "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg)",
+    "velocity_noise_mps": "velocity noise per axis, 1 sigma (m/s)",
+    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant)",
+    "hypotheses": "filters in the bank",
+    "range_span": "the bank spans guess/span to guess*span",
+    "k_per_s": "gain k (1/s)",
+    "k_star_per_s": "gain k* (1/s)",
+    "mode": "biased or bias_free",
+    "interpolation": "linear or hold",
+    "max_bearing_age_s": "no correction past this (s)",
+    "max_velocity_age_s": "a velocity older than this: stale (s)",
+    "window_s": "excitation window (s)",
+    "window_buckets": "buckets of the excitation window",
+    "excitation_min": "below: not observable",
+    "converged_tol": "relative correction below which an estimate is converged",
+    "initial_range_m": "first range guess (m)",
+    "static_hold": "hold the state while the geometry is still",
+    "hold_speed_mps": "static hold below this relative speed (m/s)",
+    "hold_innovation_deg": "static hold while the bearing agrees within this (deg)",
+    "max_buffer": "most samples of one stream kept waiting for the other",
+}
+#: Observer fields not set from the settings (the dimension; the paper's initial state).
+_OBSERVER_FIXED = ("n", "xh1_0_m", "m_0_s", "zs_0_mps")
+
+
+def _like(default: object) -> Callable[[object], Any]:
+    """A type check for a setting whose default is ``default`` (the dataclass checks the
+    range)."""
+    if isinstance(default, bool):
+        return _bool
+    if isinstance(default, int):
+        return _int(-(2**31), 2**31 - 1)
+    if isinstance(default, float):
+        return _number()
+    if isinstance(default, str):
+        return _string
+    return _optional(_number())
+
+
+def _checked_by(cls: type, key: str, check: Callable[[object], Any]) -> Callable[[object], Any]:
+    """``check``, then the dataclass ``cls`` built with this one value (its own validation,
+    whose message names the field) gives the clean value."""
+
+    def run(v: object) -> Any:
+        v = check(v)
+        try:
+            return getattr(cls(**{key: v}), key)
+        except ConfigError as exc:
+            text = str(exc)
+            raise ValueError(text[len(key) + 1 :] if text.startswith(key + " ") else text) from None
+
+    return run
+
+
+def _observer_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
+    """``[observer]``: every :class:`~mav_observer.observer.ObserverConfig` field, its default
+    and validation the dataclass's own."""
+    out: dict[str, tuple[Any, Callable[[object], Any], str]] = {}
+    for f in fields(ObserverConfig):
+        if f.name in _OBSERVER_FIXED:
+            continue
+        default = f.default
+        check = _choice(*ESTIMATORS) if f.name == "estimator" else _like(default)
+        side = next((e for e, keys in ESTIMATOR_KEYS.items() if f.name in keys), None)
+        help_ = OBSERVER_HELP.get(f.name, "") + (f" ({side} only)" if side else "")
+        out[f.name] = (default, _checked_by(ObserverConfig, f.name, check), help_)
+    return out
+
+
+def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
+    """``[tracker]``: the :class:`~mav_observer.mavlink.tracker.TrackerConfig` fields a user
+    sets, defaults from the dataclass."""
+    d = TrackerConfig()
+
+    def tc(key: str, check: Callable[[object], Any]) -> Callable[[object], Any]:
+        def run(v: object) -> Any:
+            v = check(v)
+            arg = tuple(v) if isinstance(v, list) else v
+            try:
+                TrackerConfig(**{key: arg or (None if key == "sysids" else arg)})
+            except ConfigError as exc:
+                raise ValueError(str(exc).removeprefix(key + " ")) from None
+            return v
+
+        return run
+
+    num = _number()
+    return {
+        "sources": (
+            list(d.sources),
+            tc("sources", _list_of(_choice("auto", *SOURCES), allow_empty=False)),
+            "",
+        ),
+        "gimbal_angles": (d.gimbal_angles, tc("gimbal_angles", _string), "body: servo mounts"),
+        "mount_status_yaw": (d.mount_status_yaw, tc("mount_status_yaw", _string), ""),
+        "landing_target_orientation": (
+            d.landing_target_orientation,
+            tc("landing_target_orientation", _string),
+            "PLND_ORIENT",
+        ),
+        "landing_target_yaw_align_deg": (
+            d.landing_target_yaw_align_deg,
+            _number(-360.0, hi=360.0),
+            "PLND_YAW_ALIGN",
+        ),
+        "camera_hfov_deg": (None, tc("camera_hfov_deg", _optional(num)), ""),
+        "camera_vfov_deg": (None, tc("camera_vfov_deg", _optional(num)), ""),
+        "max_attitude_age_s": (d.max_attitude_age_s, tc("max_attitude_age_s", num), ""),
+        "max_camera_attitude_age_s": (
+            d.max_camera_attitude_age_s,
+            tc("max_camera_attitude_age_s", num),
+            "",
+        ),
+        "attitude_wait_s": (
+            d.attitude_wait_s,
+            tc("attitude_wait_s", num),
+            "a bearing waits this long for the attitude of its time (s)",
+        ),
+        "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
+    }
+
+
 #: ``section -> key -> (default, checker, help)``.
 SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
     "mavlink": {
@@ -198,46 +334,8 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
             "when the network is congested: drop an estimate, or block the estimator",
         ),
     },
-    "tracker": {
-        "sources": (["auto"], _list_of(_choice("auto", *SOURCES), allow_empty=False), ""),
-        "gimbal_angles": ("flags", _choice("flags", "body"), "body: ArduPilot servo mounts"),
-        "mount_status_yaw": ("vehicle", _choice("vehicle", "earth"), ""),
-        "landing_target_orientation": ("down", _choice("down", "forward"), "PLND_ORIENT"),
-        "landing_target_yaw_align_deg": (0.0, _number(-360.0, hi=360.0), "PLND_YAW_ALIGN"),
-        "camera_hfov_deg": (None, _optional(_number(0.0, lo_open=True, hi=179.0)), ""),
-        "camera_vfov_deg": (None, _optional(_number(0.0, lo_open=True, hi=179.0)), ""),
-        "max_attitude_age_s": (0.5, _number(0.0, lo_open=True), ""),
-        "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
-    },
-    "observer": {
-        "estimator": (ESTIMATORS[0], _choice(*ESTIMATORS), "riccati (default) or paper"),
-        "bearing_noise_deg": (
-            0.5,
-            _number(0.0, lo_open=True),
-            "bearing noise per direction, 1 sigma (deg; riccati)",
-        ),
-        "velocity_noise_mps": (0.05, _number(0.0), "velocity noise per axis, 1 sigma (riccati)"),
-        "bias_walk_mps_per_sqrt_s": (
-            0.0,
-            _number(0.0),
-            "random walk of the bias a (m/s per sqrt s; 0 = constant; riccati)",
-        ),
-        "hypotheses": (7, _int(1, 31), "filters in the riccati bank"),
-        "range_span": (16.0, _number(1.0), "bank spans guess/span to guess*span (riccati)"),
-        "k_per_s": (0.2, _number(0.0, lo_open=True), "gain k (1/s; paper)"),
-        "k_star_per_s": (0.2, _number(0.0, lo_open=True), "gain k* (1/s; paper)"),
-        "mode": ("biased", _choice("biased", "bias_free"), ""),
-        "interpolation": ("linear", _choice("linear", "hold"), ""),
-        "max_bearing_age_s": (2.0, _number(0.0, lo_open=True), "no correction past this (s)"),
-        "max_velocity_age_s": (2.0, _number(0.0, lo_open=True), ""),
-        "window_s": (20.0, _number(0.0, lo_open=True), "excitation window (s)"),
-        "excitation_min": (0.01, _number(0.0), "below: not observable"),
-        "converged_tol": (0.02, _number(0.0, lo_open=True), ""),
-        "initial_range_m": (None, _optional(_number(0.0, lo_open=True)), "first range guess"),
-        "static_hold": (True, _bool, "hold the state while the geometry is still (paper)"),
-        "hold_speed_mps": (0.05, _number(0.0), ""),
-        "hold_innovation_deg": (3.0, _number(0.0), ""),
-    },
+    "tracker": _tracker_schema(),
+    "observer": _observer_schema(),
     "state": {
         "file": (None, _optional(_string), "save observers here and restore them on start"),
         "save_period_s": (10.0, _number(0.5), "save this often (s), and on stop"),
@@ -260,9 +358,15 @@ def _copy(v: Any) -> Any:
     return list(v) if isinstance(v, list) else v
 
 
-def merge(base: dict[str, dict[str, Any]], layer: Mapping[str, Any], origin: str) -> None:
+def merge(
+    base: dict[str, dict[str, Any]],
+    layer: Mapping[str, Any],
+    origin: str,
+    origins: dict[str, str] | None = None,
+) -> None:
     """Check ``layer`` (``{section: {key: value}}``) and write it over ``base`` in place.
-    ``origin`` names where the layer came from, for error messages."""
+    ``origin`` names where the layer came from, for error messages; ``origins`` collects
+    ``"section.key" -> origin`` of every value set."""
     if not isinstance(layer, Mapping):
         raise ConfigError(f"{origin}: settings must be a table of sections")
     for sec, table in layer.items():
@@ -280,6 +384,8 @@ def merge(base: dict[str, dict[str, Any]], layer: Mapping[str, Any], origin: str
                 base[sec][key] = SCHEMA[sec][key][1](value)
             except ValueError as exc:
                 raise ConfigError(f"{origin}: {sec}.{key} {exc}") from None
+            if origins is not None:
+                origins[f"{sec}.{key}"] = origin
 
 
 def load_toml(path: Path) -> dict[str, Any]:
@@ -298,11 +404,30 @@ def resolve(
 ) -> Settings:
     """Defaults, then ``config_file``, then ``overrides`` (the flags), checked."""
     d = defaults()
+    origins: dict[str, str] = {}
     if config_file is not None:
-        merge(d, load_toml(config_file), str(config_file))
+        merge(d, load_toml(config_file), str(config_file), origins)
     if overrides:
-        merge(d, overrides, "command line")
+        merge(d, overrides, "command line", origins)
+    check_estimator_keys(d, origins)
     return Settings.from_dict(d)
+
+
+def check_estimator_keys(d: Mapping[str, Mapping[str, Any]], origins: Mapping[str, str]) -> None:
+    """A setting given (file or flag) for the estimator not chosen is an error saying so."""
+    est = d["observer"]["estimator"]
+    for other, keys in ESTIMATOR_KEYS.items():
+        if other == est:
+            continue
+        for key in keys:
+            origin = origins.get(f"observer.{key}")
+            if origin is not None:
+                flag = "--" + key.removesuffix("_per_s").replace("_", "-")
+                raise ConfigError(
+                    f"{origin}: observer.{key} applies to the {other!r} estimator only (this "
+                    f'one is {est!r}); choose it (estimator = "{other}", --estimator '
+                    f"{other}) or leave {key} ({flag}) out"
+                )
 
 
 def _toml_value(v: Any) -> str:
@@ -320,12 +445,16 @@ def _toml_value(v: Any) -> str:
 def to_toml(d: Mapping[str, Mapping[str, Any]]) -> str:
     """Settings as TOML, with each key's help as a comment; unset keys are comments."""
     lines: list[str] = []
+    est = d["observer"]["estimator"]
+    other = {k for e, keys in ESTIMATOR_KEYS.items() if e != est for k in keys}
     for sec, keys in SCHEMA.items():
         lines.append(f"[{sec}]")
         for key, (_, _, help_) in keys.items():
             v = d[sec][key]
             comment = f"  # {help_}" if help_ else ""
-            if v is None:
+            if sec == "observer" and key in other:  # not this estimator's: left out
+                lines.append(f"# {key} = {_toml_value(v)}{comment}")
+            elif v is None:
                 lines.append(f"# {key} = (unset){comment}")
             else:
                 lines.append(f"{key} = {_toml_value(v)}{comment}")
@@ -354,10 +483,8 @@ class Settings:
         return to_toml(self.values)
 
     def observer_config(self) -> ObserverConfig:
-        obs = dict(self.values["observer"])
-        known = {f.name for f in fields(ObserverConfig)}
         try:
-            return ObserverConfig(**{k: v for k, v in obs.items() if k in known})
+            return ObserverConfig(**self.values["observer"])
         except ConfigError as exc:
             raise ConfigError(f"[observer] {exc}") from None
 
@@ -373,6 +500,8 @@ class Settings:
                 camera_hfov_deg=t["camera_hfov_deg"],
                 camera_vfov_deg=t["camera_vfov_deg"],
                 max_attitude_age_s=t["max_attitude_age_s"],
+                max_camera_attitude_age_s=t["max_camera_attitude_age_s"],
+                attitude_wait_s=t["attitude_wait_s"],
                 sysids=tuple(t["sysids"]) or None,
                 restore_max_gap_s=self.values["state"]["max_gap_s"],
                 observer=self.observer_config(),
@@ -384,8 +513,10 @@ class Settings:
 __all__ = [
     "DEFAULT_MAVLINK_URL",
     "DEFAULT_ZENOH_ENDPOINT",
+    "ESTIMATOR_KEYS",
     "SCHEMA",
     "Settings",
+    "check_estimator_keys",
     "defaults",
     "load_toml",
     "merge",

@@ -51,8 +51,9 @@ def test_run_prints_its_effective_settings_as_toml() -> None:
     import tomllib
 
     proc = _run(
-        "-m", "mav_observer", "run", "--print-config", "--zenoh-mode", "router", "--k", "0.3"
-    )
+        "-m", "mav_observer", "run", "--print-config", "--zenoh-mode", "router",
+        "--estimator", "paper", "--k", "0.3",
+    )  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     doc = tomllib.loads(proc.stdout)
     assert doc["zenoh"]["mode"] == "router"

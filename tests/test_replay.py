@@ -12,6 +12,7 @@ import pytest
 from mavmsg import TLOGS
 
 from mav_observer import replay as rp
+from mav_observer.cli import main
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
 from sim import fuzz, scenarios
@@ -248,3 +249,59 @@ def test_a_full_disk_stops_the_replay_with_a_message(emitted) -> None:
     assert proc.returncode == 1
     assert "cannot write output: [Errno 28] No space left on device" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+# -- replay takes the service's settings ---------------------------------------------------
+
+
+def _final(summary_json: Path) -> dict:
+    return json.loads(summary_json.read_text())["targets"]["1/gimbal"]["final"]
+
+
+def test_replay_config_changes_what_it_should(emitted, tmp_path: Path) -> None:
+    # the run's settings file: its [observer] and [tracker] tables change the replay; the
+    # service-only tables are checked and ignored; a flag wins over the file
+    tl, _ = emitted["gimbal"]
+    plain = tmp_path / "plain.json"
+    assert main(["replay", str(tl), "-q", "--summary-json", str(plain)]) == 0
+    f = tmp_path / "svc.toml"
+    f.write_text(
+        '[observer]\nestimator = "paper"\nk_per_s = 0.3\n[zenoh]\nmode = "peer"\n'
+        '[mavlink]\nurl = "udpin:127.0.0.1:14551"\n'
+    )
+    paper = tmp_path / "paper.json"
+    assert main(["replay", str(tl), "-q", "--config", str(f), "--summary-json", str(paper)]) == 0
+    assert _final(paper)["range_std_m"] is None  # the paper's observer: no covariance
+    assert _final(plain)["range_std_m"] is not None
+    assert _final(paper)["rel_pos_ned_m"] != _final(plain)["rel_pos_ned_m"]
+    k5 = tmp_path / "k5.json"
+    assert (
+        main(["replay", str(tl), "-q", "--config", str(f), "--k", "0.5", "--summary-json", str(k5)])
+        == 0
+    )
+    assert _final(k5)["rel_pos_ned_m"] != _final(paper)["rel_pos_ned_m"]
+    # the noise told moves the default estimator's uncertainty
+    noisy = tmp_path / "noisy.json"
+    args = ["replay", str(tl), "-q", "--bearing-noise-deg", "2", "--summary-json", str(noisy)]
+    assert main(args) == 0
+    assert _final(noisy)["range_std_m"] > 1.2 * _final(plain)["range_std_m"]
+    # the tracker table too: only this source (there is none of it in the log)
+    f.write_text('[tracker]\nsources = ["landing_target"]\n')
+    assert main(["replay", str(tl), "-q", "--config", str(f)]) == 3
+
+
+def test_a_flag_for_the_other_estimator_is_a_clear_error(emitted, tmp_path: Path, capsys) -> None:
+    tl, _ = emitted["gimbal"]
+    assert main(["replay", str(tl), "-q", "--k", "0.5"]) == 2
+    err = capsys.readouterr().err
+    assert "k_per_s applies to the 'paper' estimator only (this one is 'riccati')" in err
+    assert "--estimator paper" in err
+    f = tmp_path / "bad.toml"
+    f.write_text("[observer]\nbearing_noise_deg = 1.0\nestimator = 'paper'\n")
+    assert main(["replay", str(tl), "-q", "--config", str(f)]) == 2
+    assert (
+        "bad.toml: observer.bearing_noise_deg applies to the 'riccati'" in capsys.readouterr().err
+    )
+    f.write_text("[observer]\nbearing_noise = 1.0\n")
+    assert main(["replay", str(tl), "-q", "--config", str(f)]) == 2
+    assert "unknown setting observer.bearing_noise" in capsys.readouterr().err

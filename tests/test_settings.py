@@ -25,8 +25,8 @@ def test_defaults_suit_a_companion_computer() -> None:
 def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
     f = tmp_path / "svc.toml"
     f.write_text(
-        '[mavlink]\nurl = "tcp:127.0.0.1:5760"\n[observer]\nk_per_s = 0.5\n'
-        '[zenoh]\nlisten = ["tcp/127.0.0.1:7500"]\n[tracker]\nsysids = [1, 2]\n'
+        '[mavlink]\nurl = "tcp:127.0.0.1:5760"\n[observer]\nestimator = "paper"\n'
+        'k_per_s = 0.5\n[zenoh]\nlisten = ["tcp/127.0.0.1:7500"]\n[tracker]\nsysids = [1, 2]\n'
     )
     s = st.resolve(f, {"observer": {"k_per_s": 0.3}})
     assert s["mavlink"]["url"] == "tcp:127.0.0.1:5760"
@@ -40,8 +40,26 @@ def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
     [
         ({"zenoh": {"lisen": []}}, r"unknown setting zenoh\.lisen"),
         ({"zeno": {}}, r"unknown section \[zeno\]"),
-        ({"observer": {"k_per_s": -1}}, r"observer\.k_per_s must be > 0"),
+        ({"observer": {"k_per_s": -1}}, r"observer\.k_per_s must be a finite number > 0"),
         ({"observer": {"k_per_s": "fast"}}, r"observer\.k_per_s must be a number"),
+        (
+            {"observer": {"hold_innovation_deg": 120}},
+            r"observer\.hold_innovation_deg must be at most 90",
+        ),
+        ({"observer": {"hypotheses": 40}}, r"observer\.hypotheses must be an integer in \[1, 31\]"),
+        (
+            {"observer": {"k_per_s": 0.5}},
+            r"observer\.k_per_s applies to the 'paper' estimator only",
+        ),
+        (
+            {"observer": {"estimator": "paper", "bearing_noise_deg": 1.0}},
+            r"observer\.bearing_noise_deg applies to the 'riccati' estimator only",
+        ),
+        ({"observer": {"n": 2}}, r"unknown setting observer\.n"),
+        (
+            {"tracker": {"attitude_wait_s": 9}},
+            r"tracker\.attitude_wait_s must be a number in \[0, 5\]",
+        ),
         ({"zenoh": {"mode": "server"}}, r"zenoh\.mode must be one of"),
         ({"zenoh": {"listen": ["127.0.0.1:7447"]}}, r"zenoh\.listen item 0: must be a Zenoh"),
         ({"zenoh": {"prefix": "a/*"}}, r"zenoh\.prefix must be a plain key"),
@@ -66,8 +84,11 @@ def test_a_broken_file_is_named(tmp_path: Path) -> None:
         st.resolve(f)
     with pytest.raises(ConfigError, match="cannot read the settings file"):
         st.resolve(tmp_path / "missing.toml")
-    f.write_text("[observer]\nk_per_s = -3\n")
+    f.write_text('[observer]\nestimator = "paper"\nk_per_s = -3\n')
     with pytest.raises(ConfigError, match=r"bad\.toml: observer\.k_per_s"):
+        st.resolve(f)
+    f.write_text("[observer]\nk_star_per_s = 3\n")  # the default estimator has no k*
+    with pytest.raises(ConfigError, match=r"bad\.toml: observer\.k_star_per_s applies to"):
         st.resolve(f)
 
 
@@ -79,3 +100,29 @@ def test_printed_settings_read_back_to_the_same(tmp_path: Path) -> None:
     f.write_text(text)
     assert tomllib.loads(text)["zenoh"]["connect"] == ["tcp/127.0.0.1:7448"]
     assert st.resolve(f).values == s.values
+
+
+def test_the_observer_settings_are_the_dataclass_fields_with_its_defaults() -> None:
+    from dataclasses import fields
+
+    from mav_observer.observer import ObserverConfig
+
+    d = st.defaults()["observer"]
+    ours = {f.name: f.default for f in fields(ObserverConfig)}
+    assert set(d) == set(ours) - {"n", "xh1_0_m", "m_0_s", "zs_0_mps"}
+    assert all(d[k] == ours[k] for k in d)
+    assert st.resolve().observer_config() == ObserverConfig()
+
+
+def test_printed_settings_leave_the_other_estimators_keys_as_comments(tmp_path: Path) -> None:
+    for est, hidden, shown in (
+        ("riccati", "k_per_s", "bearing_noise_deg"),
+        ("paper", "bearing_noise_deg", "k_per_s"),
+    ):
+        s = st.resolve(None, {"observer": {"estimator": est}})
+        text = s.to_toml()
+        doc = tomllib.loads(text)
+        assert hidden not in doc["observer"] and shown in doc["observer"]
+        f = tmp_path / f"{est}.toml"
+        f.write_text(text)
+        assert st.resolve(f).values == s.values
