@@ -269,6 +269,11 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
             tc("attitude_wait_s", num),
             "a bearing waits this long for the attitude of its time (s)",
         ),
+        "attitude_extrapolate_s": (
+            d.attitude_extrapolate_s,
+            tc("attitude_extrapolate_s", num),
+            "a bearing this close past a dense attitude stream's latest does not wait (s)",
+        ),
         "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
     }
 
@@ -502,6 +507,7 @@ class Settings:
                 max_attitude_age_s=t["max_attitude_age_s"],
                 max_camera_attitude_age_s=t["max_camera_attitude_age_s"],
                 attitude_wait_s=t["attitude_wait_s"],
+                attitude_extrapolate_s=t["attitude_extrapolate_s"],
                 sysids=tuple(t["sysids"]) or None,
                 restore_max_gap_s=self.values["state"]["max_gap_s"],
                 observer=self.observer_config(),

@@ -378,17 +378,26 @@ def test_a_bearing_that_arrives_before_the_attitude_of_its_time_waits_for_it() -
     # attitude after the bearing gives it exactly; using the latest attitude (extrapolated
     # with the rate of the previous two) is off by up to 0.84 deg
     zig = functools.partial(yawing_flight, bearing_first=True, yaw=zigzag_yaw, rates=False)
-    _, _, err = run_in_order(zig())
+    wait = TrackerConfig(
+        attitude_extrapolate_s=0.0, observer=ObserverConfig(initial_range_m=20.0)
+    )  # always wait for the bracketing attitude
+    _, _, err = run_in_order(zig(), wait)
     assert max(err) < 1e-4
     cfg = TrackerConfig(attitude_wait_s=0.0, observer=ObserverConfig(initial_range_m=20.0))
     _, _, err = run_in_order(zig(), cfg)
     assert max(err) > 0.5
+    # by default a bearing 7 ms past a 50 Hz attitude is extrapolated at once (no latency):
+    # exact for a steady yaw rate, and no bearing waits
+    tr, _, err = run_in_order(yawing_flight(bearing_first=True, rates=False))
+    assert max(err) < 1e-4
 
 
 def test_a_bearing_whose_attitude_never_comes_is_extrapolated_with_the_body_rates() -> None:
     # the attitude stream stops: the bearings after it are used with the attitude
     # extrapolated by its reported yaw rate (bounded by max_attitude_age_s), and counted
-    tr, recs, err = run_in_order(yawing_flight(bearing_first=True, attitude_until_ms=103_000))
+    cfg = TrackerConfig(attitude_extrapolate_s=0.0, observer=ObserverConfig(initial_range_m=20.0))
+    flight = yawing_flight(bearing_first=True, attitude_until_ms=103_000)
+    tr, recs, err = run_in_order(flight, cfg)
     assert tr.events["attitude_extrapolated"] >= 10
     late = [r for r in recs if r.t_boot_s > 103.0]
     assert len(late) >= 10  # used, not dropped, within max_attitude_age_s of the last attitude
