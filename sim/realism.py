@@ -42,10 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer.frames import euler_from_dcm
 from mav_observer.mavlink.dialect import MSG_ID, codec
 from sim.emitter import AUTOPILOT, Emission
-from sim.vehicle import GRAVITY_MPS2, Vehicle, VehicleState
+from sim.vehicle import Vehicle
 
 STREAMS = {
     MSG_ID["ATTITUDE"]: "attitude",
@@ -252,40 +251,9 @@ class SwingVehicle(Vehicle):
     yaw_swing_deg: float = 0.0
     yaw_swing_period_s: float = 6.0
 
-    def state(self, t: float) -> VehicleState:
-        sc = self.scenario
-        x = sc.x(t)
-        target = np.asarray(self.target_pos0_ned_m, dtype=float) + sc.w_mps * t
-        vel = self._vel_true(t)
-        h = 1e-3
-        acc = (self._vel_true(t + h) - self._vel_true(t - h)) / (2 * h)
-        thrust = acc - np.array([0.0, 0.0, GRAVITY_MPS2])
-        z_b = -thrust / np.linalg.norm(thrust)
-        yaw = math.atan2(x[1], x[0]) if math.hypot(x[0], x[1]) > 1e-6 else 0.0
-        yaw += math.radians(self.yaw_swing_deg) * math.sin(
+    def yaw_offset(self, t: float) -> float:
+        return math.radians(self.yaw_swing_deg) * math.sin(
             2 * math.pi * t / self.yaw_swing_period_s
-        )
-        x_c = np.array([math.cos(yaw), math.sin(yaw), 0.0])
-        y_b = np.cross(z_b, x_c)
-        y_b /= np.linalg.norm(y_b)
-        x_b = np.cross(y_b, z_b)
-        r = np.column_stack((x_b, y_b, z_b))
-        roll, pitch, yaw = euler_from_dcm(tuple(map(tuple, r)))  # type: ignore[arg-type]
-        if self.wobble_deg:
-            w = math.radians(self.wobble_deg)
-            ph = 2 * math.pi * t / self.wobble_period_s
-            roll += w * math.sin(ph)
-            pitch += w * math.sin(1.3 * ph + 1.0)
-        return VehicleState(
-            t_s=t,
-            pos_ned_m=target - x,
-            vel_true_ned_mps=vel,
-            vel_meas_ned_mps=vel - sc.vel_error_mps,
-            rel_pos_ned_m=x,
-            target_pos_ned_m=target,
-            roll=roll,
-            pitch=pitch,
-            yaw=yaw,
         )
 
 

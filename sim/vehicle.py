@@ -61,6 +61,11 @@ class Vehicle:
     def _vel_true(self, t: float) -> np.ndarray:
         return self.scenario.w_mps - self.scenario.xdot(t)
 
+    def yaw_offset(self, t: float) -> float:
+        """Heading (rad) added to the nose-toward-the-target yaw at ``t``; 0 here (see
+        :class:`sim.realism.SwingVehicle`)."""
+        return 0.0
+
     def state(self, t: float) -> VehicleState:
         sc = self.scenario
         x = sc.x(t)
@@ -72,6 +77,7 @@ class Vehicle:
         thrust = acc - np.array([0.0, 0.0, GRAVITY_MPS2])
         z_b = -thrust / np.linalg.norm(thrust)
         yaw = math.atan2(x[1], x[0]) if math.hypot(x[0], x[1]) > 1e-6 else 0.0
+        yaw += self.yaw_offset(t)
         x_c = np.array([math.cos(yaw), math.sin(yaw), 0.0])
         y_b = np.cross(z_b, x_c)
         y_b /= np.linalg.norm(y_b)
