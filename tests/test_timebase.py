@@ -66,3 +66,15 @@ def test_a_stray_first_message_cannot_hold_the_real_clock_off() -> None:
     events = [c.update(500.0 + 0.1 * i, 1500.0 + 0.1 * i) for i in range(8)]
     assert events == ["time_jump"] * 5 + ["clock_jump", None, None]
     assert c.offset_s == pytest.approx(1000.0)
+
+
+def test_another_streams_slightly_older_stamp_is_in_order() -> None:
+    # one component's ATTITUDE stamped 15 ms before the LOCAL_POSITION_NED it follows
+    c = ClockMap()
+    assert c.update(500.000, 1500.010) is None
+    assert c.update(499.985, 1500.011) is None  # 15 ms back: used
+    assert c.last_boot_s == 500.0  # the clock's latest time kept
+    assert c.offset_s == pytest.approx(1000.010)
+    assert c.update(499.990, 1499.995) is None  # a lower arrival - boot lowers the offset
+    assert c.offset_s == pytest.approx(1000.005)
+    assert c.update(499.7, 1500.02) == "out_of_order"  # 0.3 s back: refused

@@ -22,8 +22,11 @@ Policy (``docs/frames.md``, "Time"):
   vehicle's observers. Until
   then such messages are refused (``clock_unconfirmed``) and the old clock goes on. A
   real reboot therefore costs its first ``confirm_s`` of messages; a stray message costs
-  nothing. Going back by less than ``reboot_back_s`` is a reordered or duplicated message,
-  refused as ``out_of_order``.
+  nothing. Going back by up to ``reorder_s`` (0.25 s) is another stream of the same
+  component stamped a little earlier (an ATTITUDE sent after a LOCAL_POSITION_NED of a later
+  time, or jitter between the two): accepted, the clock's latest time kept. Going back by
+  more, less than ``reboot_back_s``, is a reordered or duplicated message, refused as
+  ``out_of_order``.
 * ``time_boot_ms`` may advance by at most ``jump_ahead_s`` plus ``max_rate`` times the arrival
   time since the previous message (``max_rate`` 100 leaves room for simulators run faster than
   real time); a message further ahead (a clock that jumps by hours, a corrupted field) is
@@ -42,6 +45,10 @@ class ClockMap:
 
     drift_ppm: float = 200.0
     reboot_back_s: float = 2.0
+    #: a message this little behind the latest of its clock (s) is in order for the clock:
+    #: one component's streams are stamped and sent in their own order (an ATTITUDE a few ms
+    #: older than the LOCAL_POSITION_NED before it); each stream's own order is its reader's
+    reorder_s: float = 0.25
     confirm_count: int = 5
     confirm_s: float = 0.5
     jump_ahead_s: float = 10.0
@@ -60,8 +67,9 @@ class ClockMap:
         more than ``jump_ahead_s`` is (the mapping restarts from the new clock either way: a
         stray first message cannot hold the real clock off for ever); ``"clock_unconfirmed"``
         and ``"time_jump"`` for such messages before that, ``"out_of_order"`` if the clock went
-        back by less than ``reboot_back_s`` (those three: refuse the message, nothing
-        changed), else ``None``."""
+        back by more than ``reorder_s`` and less than ``reboot_back_s`` (those three: refuse
+        the message, nothing changed), else ``None`` (a message up to ``reorder_s`` behind the
+        latest is accepted without moving the clock's latest time)."""
         if self.last_boot_s is not None and self.last_arrival_s is not None:
             back = self.last_boot_s - boot_s
             ahead = -back - self._advance_max(arrival_s - self.last_arrival_s)
@@ -73,8 +81,12 @@ class ClockMap:
                 self.last_boot_s, self.last_arrival_s = group[2], group[3]
                 self.pending = []
                 return "reboot" if back > 0.0 else "clock_jump"
-            if back > 0.0:
+            if back > self.reorder_s:
                 return "out_of_order"
+            if back > 0.0:  # another stream's older stamp: a valid sample of the offset
+                if self.offset_s is not None:
+                    self.offset_s = min(self.offset_s, arrival_s - boot_s)
+                return None
         if self.pending:  # candidates not heard of for a while: the old clock went on
             self.pending = [g for g in self.pending if arrival_s - g[3] <= 2 * self.confirm_s]
         candidate = arrival_s - boot_s

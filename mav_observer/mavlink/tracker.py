@@ -609,6 +609,8 @@ class Tracker:
         if max(map(abs, vel)) > MAX_SPEED_MPS or max(map(abs, pos)) > MAX_LOCAL_POSITION_M:
             raise Skip("out_of_range", f"LOCAL_POSITION_NED position {pos} velocity {vel}")
         tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        if veh.position is not None and tb < veh.position[0]:
+            raise Skip("out_of_order", f"LOCAL_POSITION_NED at {tb:.3f} s after a later one")
         mean_v = self._interval_mean_velocity(veh, tb, pos, vel)
         veh.position = (tb, pos, vel)
         v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)

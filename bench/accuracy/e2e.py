@@ -1,0 +1,530 @@
+"""End-to-end accuracy: emitter tlogs replayed through the product, scored against the truth.
+
+``python -m bench.accuracy.e2e [--cases NAME ...] [--seeds N] [--duration S] [--jobs J]``
+
+Unlike the batched harness (:mod:`bench.accuracy.run`), which feeds the estimator's maths
+directly, every run here goes the way a user's data goes:
+
+1. the software emitter (:mod:`sim.emitter`) writes a tlog of a named case: a scenario, a
+   bearing stream and the realism knobs of :class:`sim.emitter.EmitterConfig` (per-stream
+   latency and jitter, a gimbal that is its own component with its own drifting clock, fast
+   yaw, sparse or coloured velocity, dropouts, tlog clock jitter and jumps), with its truth;
+2. the tlog is replayed by the product's own replay (:func:`mav_observer.replay.replay`) with
+   the settings a user would write in a settings file (``settings`` of the case: the bearing
+   and velocity noise told, or nothing for the defaults);
+3. the estimates are scored against the truth: position RMS over the last third and its ratio
+   to the Cramér-Rao bound along the same truth (:func:`bench.accuracy.core.crlb`, white
+   noise only: a coloured or constant velocity error makes the bound unattainable and the
+   ratio says how far), the range bias, the bias RMS, NEES per axis (from the per-axis
+   standard deviations published in every record), and the time after which the error stays
+   below 10 % of the range.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.accuracy import core
+from mav_observer import settings as st
+from mav_observer.mavlink.tracker import TrackerConfig
+from mav_observer.observer import ObserverConfig
+from mav_observer.replay import replay
+from sim import emitter as em
+from sim import realism, scenarios
+
+#: The window of the steady metrics: the last third of a run.
+STEADY_FRACTION = 1.0 / 3.0
+
+
+@dataclass(frozen=True)
+class E2ECase:
+    """One end-to-end case: what the emitter sends and what the user tells the product."""
+
+    name: str
+    description: str
+    scenario: str
+    bearing: str
+    scenario_params: dict[str, Any] = field(default_factory=dict)
+    emitter: dict[str, Any] = field(default_factory=dict)
+    #: :class:`sim.realism.Realism` knobs (latency, jitter, component clock, velocity error,
+    #: dropouts, tlog clock) and the vehicle's yaw swing (``yaw_swing_deg``, 0: none)
+    realism: dict[str, Any] = field(default_factory=dict)
+    yaw_swing_deg: float = 0.0
+    #: TrackerConfig fields (how the messages are read, e.g. ``gimbal_angles``)
+    tracker: dict[str, Any] = field(default_factory=dict)
+    #: the ``[observer]`` settings of the user's settings file (empty: the defaults)
+    settings: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def bearing_deg(self) -> float:
+        return float(self.emitter.get("bearing_noise_deg", 0.0))
+
+    @property
+    def velocity_white_mps(self) -> float:
+        return float(self.emitter.get("velocity_noise_mps", 0.0))
+
+    @property
+    def knobs(self) -> str:
+        """The realism knobs in force, for the tables."""
+        parts = [f"{k}={v}" for k, v in self.realism.items()]
+        if self.yaw_swing_deg:
+            parts.append(f"yaw_swing_deg={self.yaw_swing_deg:g}")
+        return ", ".join(parts) or "none"
+
+
+#: A gimbal that is its own MAVLink component (MAV_COMP_ID_GIMBAL) beside the autopilot:
+#: 25 Hz against ATTITUDE at 50 Hz, 5 ms latency and up to 15 ms of jitter (about half of
+#: the bearings arrive before the ATTITUDE of their own time), its own boot clock 3.7 s off
+#: the autopilot's and drifting 40 ppm.
+OWN_COMPONENT = {
+    "component_id": 154,
+    "bearing_latency_s": 0.005,
+    "attitude_latency_s": 0.002,
+    "position_latency_s": 0.003,
+    "jitter_s": 0.015,
+    "component_boot_offset_s": 3.7,
+    "component_clock_drift_ppm": 40.0,
+}
+FAST = {"attitude_hz": 50.0, "bearing_hz": 25.0, "position_hz": 10.0}
+TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0}
+B05 = {"bearing_noise_deg": 0.5}
+
+CASES: dict[str, E2ECase] = {
+    c.name: c
+    for c in (
+        # the headline: the five bearing paths at 0.5 deg, the noise told in the settings file
+        E2ECase(
+            "gimbal_vehicle_fig8",
+            "gimbal, own component and clock, yaw in the vehicle frame, figure-8, yaw swing 30 deg",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "gimbal_earth_fig8",
+            "gimbal, own component and clock, yaw in the earth frame, figure-8, yaw swing 30 deg",
+            "figure8",
+            "gimbal_earth",
+            emitter={**FAST, **B05},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "landing_target_weave",
+            "LANDING_TARGET, body-frame downward camera (own component), weaving flight, 20 Hz",
+            "weave",
+            "landing_target",
+            emitter={"attitude_hz": 50.0, "bearing_hz": 20.0, **B05},
+            realism={**OWN_COMPONENT, "component_id": 100, "bearing_latency_s": 0.02},
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "mount_status_orbit",
+            "MOUNT_STATUS (no time field, ArduPilot), orbit, 10 Hz",
+            "orbit",
+            "mount_status",
+            emitter={"attitude_hz": 20.0, "bearing_hz": 10.0, **B05},
+            realism={"jitter_s": 0.003},
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "camera_point_orbit",
+            "camera tracked point (no time field) through a roughly pointed gimbal, orbit",
+            "orbit",
+            "camera",
+            emitter={"attitude_hz": 50.0, "bearing_hz": 20.0, **B05},
+            realism={"jitter_s": 0.003},
+            settings=TOLD_05,
+        ),
+        # each realism knob in a case of its own (gimbal, vehicle-frame yaw, figure-8)
+        E2ECase(
+            "yaw_60dps",
+            "yaw swing of 57 deg over 6 s (60 deg/s), gimbal own component with jitter",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=57.0,
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "velocity_1hz",
+            "LOCAL_POSITION_NED at 1 Hz (positions true), figure-8",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, "position_hz": 1.0, **B05},
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "velocity_coloured",
+            "velocity error: 0.05 m/s white + 0.1 m/s Gauss-Markov (60 s) + (0.3, -0.2, 0) m/s",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "velocity_noise_mps": 0.05},
+            realism={
+                "velocity_gm_std_mps": 0.1,
+                "velocity_gm_tau_s": 60.0,
+                "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
+            },
+            settings={"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.1},
+        ),
+        E2ECase(
+            "plain_fig8",
+            "gimbal from the autopilot, no realism knob, figure-8 (the reference)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05},
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "dropouts",
+            "bearing dropouts: 3 s every 20 s, and 10 % of the rest lost",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "drop_prob": 0.1},
+            realism={"dropout_every_s": 20.0, "dropout_length_s": 3.0},
+            settings=TOLD_05,
+        ),
+        E2ECase(
+            "tlog_clock",
+            "the tlog's own clock: 30 ms jitter, jumps of +500 s and -200 s",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05},
+            realism={
+                **OWN_COMPONENT,
+                "tlog_jitter_s": 0.03,
+                "tlog_jumps": ((100.0, 500.0), (200.0, -200.0)),
+            },
+            settings=TOLD_05,
+        ),
+    )
+}
+HEADLINE = CASES_HEADLINE = (
+    "gimbal_vehicle_fig8",
+    "gimbal_earth_fig8",
+    "landing_target_weave",
+    "mount_status_orbit",
+    "camera_point_orbit",
+)
+
+
+# -- scenarios of this harness (flights with more turning than the orbit) --------------------
+
+
+def figure8(
+    duration_s: float = 300.0,
+    period_s: float = 60.0,
+    half_width_m: float = 16.0,
+    half_height_m: float = 8.0,
+    centre_ne_m: tuple[float, float] = (22.0, 6.0),
+    height_m: float = 12.0,
+    wind_ned_mps: tuple[float, float, float] = (2.0, -1.0, 0.0),
+) -> scenarios.Scenario:
+    """A figure-8 (lemniscate of Gerono) ``height_m`` above a ground target whose centre is
+    ``centre_ne_m`` from the target; one figure per ``period_s``; constant velocity error
+    ``wind_ned_mps`` (``a = -wind``)."""
+    om = 2.0 * math.pi / period_s
+    cn, ce = centre_ne_m
+    wind = np.asarray(wind_ned_mps, dtype=float)
+
+    def x_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (
+                cn + half_width_m * np.sin(om * t),
+                ce + half_height_m * np.sin(2 * om * t),
+                np.full_like(t, height_m),
+            )
+        )
+
+    def xdot_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (
+                half_width_m * om * np.cos(om * t),
+                2 * om * half_height_m * np.cos(2 * om * t),
+                np.zeros_like(t),
+            )
+        )
+
+    return scenarios.Scenario(
+        name="figure8",
+        n=3,
+        duration_s=duration_s,
+        a_mps=-wind,
+        x_of_t=x_of_t,
+        xdot_of_t=xdot_of_t,
+        description=f"figure-8 {2 * half_width_m:g} x {2 * half_height_m:g} m, {period_s:g} s",
+    )
+
+
+def weave(
+    duration_s: float = 300.0,
+    height_m: float = 15.0,
+    wind_ned_mps: tuple[float, float, float] = (1.0, 1.5, 0.0),
+) -> scenarios.Scenario:
+    """A vehicle weaving above a ground target (north 10 +- 8 m, east +- 6 m, 15 m up)."""
+    wind = np.asarray(wind_ned_mps, dtype=float)
+    w1, w2 = 2 * math.pi / 37.0, 2 * math.pi / 23.0
+
+    def x_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (10.0 + 8.0 * np.sin(w1 * t), 6.0 * np.sin(w2 * t), np.full_like(t, height_m))
+        )
+
+    def xdot_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (8.0 * w1 * np.cos(w1 * t), 6.0 * w2 * np.cos(w2 * t), np.zeros_like(t))
+        )
+
+    return scenarios.Scenario(
+        name="weave",
+        n=3,
+        duration_s=duration_s,
+        a_mps=-wind,
+        x_of_t=x_of_t,
+        xdot_of_t=xdot_of_t,
+        description="weaving above a ground target",
+    )
+
+
+LOCAL_SCENARIOS = {"figure8": figure8, "weave": weave}
+
+
+def make_scenario(name: str, duration_s: float, **params: Any) -> scenarios.Scenario:
+    if name in LOCAL_SCENARIOS:
+        return LOCAL_SCENARIOS[name](duration_s=duration_s, **params)
+    return scenarios.make(name, duration_s=duration_s, **params)
+
+
+# -- one run --------------------------------------------------------------------------------
+
+
+def settings_toml(settings: dict[str, Any], tracker: dict[str, Any]) -> str:
+    """The settings file a user would write for this case."""
+    lines = ["[observer]"]
+    lines += [f"{k} = {json.dumps(v)}" for k, v in settings.items()]
+    if tracker:
+        lines.append("[tracker]")
+        lines += [f"{k} = {json.dumps(v)}" for k, v in tracker.items()]
+    return "\n".join(lines) + "\n"
+
+
+def tracker_config(case: E2ECase) -> TrackerConfig:
+    return TrackerConfig(observer=ObserverConfig(**case.settings), **case.tracker)
+
+
+def read_jsonl(path: Path) -> list[dict[str, Any]]:
+    with open(path, encoding="utf-8") as fh:
+        return [json.loads(line) for line in fh if line.strip()]
+
+
+def score(
+    records: list[dict[str, Any]],
+    truth: list[dict[str, Any]],
+    *,
+    sigma_rad: float,
+    q_x: float,
+    duration_s: float,
+    t0_boot_s: float,
+) -> dict[str, float]:
+    """Metrics of one run: the records of its target against its truth (both keyed by the
+    autopilot clock, ``t_boot_s``)."""
+    tt = np.array([d["t_boot_s"] for d in truth])
+    order = np.argsort(tt, kind="stable")
+    tt = tt[order]
+    xt = np.array([d["rel_pos_ned_m"] for d in truth])[order]
+    at = np.array([d["bias_ned_mps"] for d in truth])[order]
+    t = np.array([r["t_boot_s"] for r in records])
+    xh = np.array([r["rel_pos_ned_m"] for r in records], dtype=float)
+    ah = np.array([r["bias_ned_mps"] for r in records], dtype=float)
+    sd = np.array([r["rel_pos_std_ned_m"] or [math.nan] * 3 for r in records], dtype=float)
+    inside = (t >= tt[0]) & (t <= tt[-1])
+    t, xh, ah, sd = t[inside], xh[inside], ah[inside], sd[inside]
+    x_true = np.column_stack([np.interp(t, tt, xt[:, i]) for i in range(3)])
+    a_true = np.column_stack([np.interp(t, tt, at[:, i]) for i in range(3)])
+    err = xh - x_true
+    e2 = np.sum(err * err, axis=1)
+    r_true = np.linalg.norm(x_true, axis=1)
+    rel = np.sqrt(e2) / r_true
+    t_steady = t0_boot_s + (1.0 - STEADY_FRACTION) * duration_s
+    sel = t >= t_steady
+    bound = core.crlb(tt, xt, sigma_rad, q_x)
+    bsel = tt >= t_steady
+    crlb_rms = math.sqrt(float(np.mean(bound[bsel] ** 2)))
+    rms = math.sqrt(float(np.mean(e2[sel])))
+    with np.errstate(all="ignore"):
+        nees = float(np.mean((err[sel] / sd[sel]) ** 2))
+    above = ~(rel < core.CONVERGED_REL)
+    t10 = math.inf
+    if not above[-1]:
+        last = np.nonzero(above)[0]
+        t10 = float(t[last[-1] + 1] - t0_boot_s) if len(last) else float(t[0] - t0_boot_s)
+    db = ah[sel] - a_true[sel]
+    return {
+        "rms_m": rms,
+        "crlb_m": crlb_rms,
+        "ratio": rms / crlb_rms,
+        "sq_m2": float(np.sum(e2[sel])),
+        "crlb_sq_m2": float(np.sum(bound[bsel] ** 2)),
+        "n": int(np.sum(sel)),
+        "n_bound": int(np.sum(bsel)),
+        "rel_rms_pct": 100.0 * math.sqrt(float(np.mean(rel[sel] ** 2))),
+        "max_rel_pct": 100.0 * float(np.max(rel[sel])),
+        "range_bias_pct": 100.0
+        * float(np.mean((np.linalg.norm(xh[sel], axis=1) - r_true[sel]) / r_true[sel])),
+        "bias_rms_mps": math.sqrt(float(np.mean(np.sum(db * db, axis=1)))),
+        "nees_axis": nees,
+        "t10_s": t10,
+        "converged_share": float(
+            np.mean([r["status"] == "converged" for r, k in zip(records, inside, strict=True) if k])
+        ),
+    }
+
+
+def run_one(case_name: str, seed: int, duration_s: float, workdir: str | None = None) -> dict:
+    """Emit, replay and score one run of a case (a process-pool task)."""
+    case = CASES[case_name]
+    t_wall = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        d = Path(tmp)
+        sc = make_scenario(case.scenario, duration_s, **case.scenario_params)
+        cfg = em.EmitterConfig(
+            bearing=case.bearing, duration_s=duration_s, seed=seed, **case.emitter
+        )
+        vehicle = realism.SwingVehicle(sc, yaw_swing_deg=case.yaw_swing_deg)
+        emitter = em.Emitter(sc, cfg, vehicle)
+        link = realism.Realism(seed=seed, **case.realism)
+        tlog, truth_path, out = d / "run.tlog", d / "truth.jsonl", d / "est.jsonl"
+        arrivals = link.apply(emitter.emissions(), cfg.t0_unix_s, cfg.sysid)
+        realism.write(arrivals, tlog=tlog, truth=truth_path)
+        t_emit = time.perf_counter() - t_wall
+        settings = d / "settings.toml"  # what the user writes, read as replay --config does
+        settings.write_text(settings_toml(case.settings, case.tracker))
+        tc = st.resolve(settings).tracker_config()
+        summary = replay(str(tlog), tracker_config=tc, output_jsonl=out)
+        t_replay = time.perf_counter() - t_wall - t_emit
+        target = em.TARGET_OF[case.bearing]
+        records = [r for r in read_jsonl(out) if r["target"] == target]
+        truth = [r for r in read_jsonl(truth_path) if r["target"] == target]
+    dt_v = 1.0 / cfg.position_hz
+    m = score(
+        records,
+        truth,
+        sigma_rad=math.radians(case.bearing_deg),
+        q_x=case.velocity_white_mps**2 * dt_v,
+        duration_s=duration_s,
+        t0_boot_s=cfg.boot_at_start_s,
+    )
+    m.update(
+        case=case_name,
+        seed=seed,
+        emit_s=t_emit,
+        replay_s=t_replay,
+        events=dict(summary.events),
+        skipped=dict(summary.skipped),
+    )
+    return m
+
+
+def pooled(runs: list[dict]) -> dict[str, float]:
+    """Metrics of a case over its runs (RMS values pooled over all steady samples)."""
+    sq = sum(r["sq_m2"] for r in runs)
+    n = sum(r["n"] for r in runs)
+    csq = sum(r["crlb_sq_m2"] for r in runs)
+    nb = sum(r["n_bound"] for r in runs)
+    rms = math.sqrt(sq / n)
+    crlb = math.sqrt(csq / nb)
+    t10 = sorted(r["t10_s"] for r in runs)
+    return {
+        "runs": len(runs),
+        "rms_m": rms,
+        "crlb_m": crlb,
+        "ratio": rms / crlb,
+        "worst_ratio": max(r["ratio"] for r in runs),
+        "rel_rms_pct": float(np.mean([r["rel_rms_pct"] for r in runs])),
+        "range_bias_pct": float(np.mean([r["range_bias_pct"] for r in runs])),
+        "bias_rms_mps": math.sqrt(float(np.mean([r["bias_rms_mps"] ** 2 for r in runs]))),
+        "nees_axis": float(np.mean([r["nees_axis"] for r in runs])),
+        "t10_med_s": float(np.median(t10)),
+        "t10_max_s": t10[-1],
+        "converged_share": float(np.mean([r["converged_share"] for r in runs])),
+    }
+
+
+def run_cases(
+    names: Sequence[str], seeds: int, duration_s: float, jobs: int
+) -> dict[str, dict[str, Any]]:
+    tasks = [(n, s) for n in names for s in range(seeds)]
+    out: dict[str, list[dict]] = {n: [] for n in names}
+    if jobs <= 1:
+        results = [run_one(n, s, duration_s) for n, s in tasks]
+    else:
+        with ProcessPoolExecutor(jobs) as pool:
+            results = list(pool.map(run_one, *zip(*tasks, strict=True), [duration_s] * len(tasks)))
+    for r in results:
+        out[r["case"]].append(r)
+    return {n: {"pooled": pooled(rs), "runs": rs} for n, rs in out.items()}
+
+
+def table(results: dict[str, dict[str, Any]]) -> str:
+    lines = [
+        "| case | position RMS, last third | CRLB | ratio (worst seed) | NEES per axis "
+        "| range bias | bias RMS | t10 median / max | converged |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, res in results.items():
+        p = res["pooled"]
+        lines.append(
+            f"| {name} | {1000 * p['rms_m']:.1f} mm | {1000 * p['crlb_m']:.1f} mm "
+            f"| {p['ratio']:.2f}x ({p['worst_ratio']:.2f}x) | {p['nees_axis']:.2f} "
+            f"| {p['range_bias_pct']:+.2f} % | {p['bias_rms_mps']:.3f} m/s "
+            f"| {p['t10_med_s']:.1f} / {p['t10_max_s']:.1f} s "
+            f"| {100 * p['converged_share']:.0f} % |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.accuracy.e2e", description=__doc__)
+    p.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    p.add_argument("--seeds", type=int, default=4)
+    p.add_argument("--duration", type=float, default=300.0, help="s per run")
+    p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1))
+    p.add_argument("--json", type=Path, help="write every run's metrics here")
+    args = p.parse_args(argv)
+    t0 = time.perf_counter()
+    res = run_cases(args.cases, args.seeds, args.duration, args.jobs)
+    wall = time.perf_counter() - t0
+    print(table(res))
+    for name, r in res.items():
+        ev = {}
+        for run in r["runs"]:
+            for k, v in run["events"].items():
+                ev[k] = ev.get(k, 0) + v
+        if ev:
+            print(f"{name}: events {ev}")
+    print(f"{sum(len(r['runs']) for r in res.values())} runs in {wall:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(res, indent=1, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
