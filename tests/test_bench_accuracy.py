@@ -186,3 +186,20 @@ def test_the_command_line_on_a_short_grid(capsys: pytest.CaptureFixture[str]) ->
     zero_noise = [r for r in rows if "| 0 | 0 |" in r]
     assert all(r.split("|")[11].strip() == "-" for r in zero_noise)  # no CRLB
     assert "wall time" in out
+
+
+def test_generated_blocks_survive_the_pages_regeneration(tmp_path: Path) -> None:
+    from bench.accuracy import blocks
+
+    page = tmp_path / "accuracy.md"
+    page.write_text("# Accuracy\n\nintro\n\n## What is measured\n\ntext\n")
+    blocks.put_block(page, "real-logs", "## Real\n\nrows 1")
+    blocks.put_block(page, "end-to-end", "## E2E\n\nrows 2")
+    blocks.put_block(page, "real-logs", "## Real\n\nrows 3")  # replaced, not added
+    text = page.read_text()
+    assert text.count("## Real") == 1 and "rows 3" in text and "rows 1" not in text
+    assert text.index("## E2E") < text.index("## Real") < text.index("## What is measured")
+    # the harness regenerates the page around them
+    kept = blocks.blocks_of(text)
+    fresh = blocks.with_blocks("# Accuracy\n\nnew intro\n\n## What is measured\n\nnew\n", kept)
+    assert "rows 2" in fresh and "rows 3" in fresh and "new intro" in fresh

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import core, estimators, report
+from . import blocks, core, estimators, report
 from .run import Result, Task, fmt, run_all
 
 #: Runs per case: batched estimators; the per-sample ones on the headline cases and elsewhere.
@@ -155,7 +155,9 @@ def write_docs(root: Path, *, jobs: int, seed: int = 0) -> int:
         made.append("accuracy_random_init.png")
 
     text = _markdown(grid, random, random_big, service, timing, total, jobs, made, version)
-    (root / "docs" / "accuracy.md").write_text(text)
+    page = root / "docs" / "accuracy.md"
+    kept = blocks.blocks_of(page.read_text()) if page.exists() else {}
+    page.write_text(blocks.with_blocks(text, kept))  # the end-to-end blocks stay
     print(f"wrote docs/accuracy.md and {len(made)} figures in {total:.0f} s")
     return 0
 
