@@ -15,6 +15,7 @@ Use :func:`make` with a name from :data:`SCENARIOS`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -283,12 +284,89 @@ def planar(
     )
 
 
+def figure8(
+    duration_s: float = 300.0,
+    period_s: float = 60.0,
+    half_width_m: float = 16.0,
+    half_height_m: float = 8.0,
+    centre_ne_m: tuple[float, float] = (22.0, 6.0),
+    height_m: float = 12.0,
+    wind_ned_mps: tuple[float, float, float] = (2.0, -1.0, 0.0),
+) -> Scenario:
+    """A figure-8 (lemniscate of Gerono) ``height_m`` above a ground target whose centre is
+    ``centre_ne_m`` from the target; one figure per ``period_s``; constant velocity error
+    ``wind_ned_mps`` (``a = -wind``)."""
+    om = 2.0 * math.pi / period_s
+    cn, ce = centre_ne_m
+    wind = np.asarray(wind_ned_mps, dtype=float)
+
+    def x_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (
+                cn + half_width_m * np.sin(om * t),
+                ce + half_height_m * np.sin(2 * om * t),
+                np.full_like(t, height_m),
+            )
+        )
+
+    def xdot_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (
+                half_width_m * om * np.cos(om * t),
+                2 * om * half_height_m * np.cos(2 * om * t),
+                np.zeros_like(t),
+            )
+        )
+
+    return Scenario(
+        name="figure8",
+        n=3,
+        duration_s=duration_s,
+        a_mps=-wind,
+        x_of_t=x_of_t,
+        xdot_of_t=xdot_of_t,
+        description=f"figure-8 {2 * half_width_m:g} x {2 * half_height_m:g} m, {period_s:g} s",
+    )
+
+
+def weave(
+    duration_s: float = 300.0,
+    height_m: float = 15.0,
+    wind_ned_mps: tuple[float, float, float] = (1.0, 1.5, 0.0),
+) -> Scenario:
+    """A vehicle weaving above a ground target (north 10 +- 8 m, east +- 6 m, 15 m up)."""
+    wind = np.asarray(wind_ned_mps, dtype=float)
+    w1, w2 = 2 * math.pi / 37.0, 2 * math.pi / 23.0
+
+    def x_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (10.0 + 8.0 * np.sin(w1 * t), 6.0 * np.sin(w2 * t), np.full_like(t, height_m))
+        )
+
+    def xdot_of_t(t: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (8.0 * w1 * np.cos(w1 * t), 6.0 * w2 * np.cos(w2 * t), np.zeros_like(t))
+        )
+
+    return Scenario(
+        name="weave",
+        n=3,
+        duration_s=duration_s,
+        a_mps=-wind,
+        x_of_t=x_of_t,
+        xdot_of_t=xdot_of_t,
+        description="weaving above a ground target",
+    )
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper": paper,
     "orbit": orbit,
     "moving_target": moving_target,
     "straight_pass": straight_pass,
     "planar": planar,
+    "figure8": figure8,
+    "weave": weave,
 }
 
 
