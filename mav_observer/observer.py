@@ -398,7 +398,7 @@ class BiasObserver:
         self._vel_dt = 0.05
         #: velocity sample time -> the mean velocity (m/s) over the interval that ends at it
         #: (see :meth:`update_velocity_values`)
-        self._vel_shift: dict[float, list[float]] = {}
+        self._vel_mean: dict[float, list[float]] = {}
         self._counts = {"velocity": 0, "bearing": 0}
 
     # -- public properties ----------------------------------------------------------
@@ -534,7 +534,7 @@ class BiasObserver:
         buf = self._velocities
         self._accept(buf, "velocity", t_s, v_mps, refuse_late=False)
         if interval_mean_mps is not None and len(buf) >= 2 and buf[-2][0] < t_s:
-            self._vel_shift[t_s] = list(interval_mean_mps)
+            self._vel_mean[t_s] = list(interval_mean_mps)
 
     def update_bearing_values(self, t_s: float, y: list[float]) -> Estimate:
         """:meth:`update_bearing` for a caller that already checked the sample (finite
@@ -605,10 +605,10 @@ class BiasObserver:
                     break
             if keep_from:
                 del buf[:keep_from]
-        if self._vel_shift and self._velocities:
+        if self._vel_mean and self._velocities:
             first = self._velocities[0][0]
-            for t in [t for t in self._vel_shift if t <= first]:
-                del self._vel_shift[t]
+            for t in [t for t in self._vel_mean if t <= first]:
+                del self._vel_mean[t]
 
     def _horizon(self) -> float:
         cfg = self.config
@@ -692,7 +692,7 @@ class BiasObserver:
         if p is None:
             return (q if q is not None else self._velocities[0])[1]
         if q is not None:
-            mean = self._vel_shift.get(q[0]) if self._vel_shift else None
+            mean = self._vel_mean.get(q[0]) if self._vel_mean else None
             if mean is not None:  # the interval's mean is known (from the positions): the
                 # samples' shape, shifted so that its integral is the positions' change
                 v = self._lerp(p, q, t)
@@ -705,7 +705,7 @@ class BiasObserver:
     def _chord_at(self, t: float) -> bool:
         """True if the velocity at ``t`` is an interval's mean from the positions."""
         _, q = self._bracket(self._velocities, t)
-        return q is not None and q[0] in self._vel_shift
+        return q is not None and q[0] in self._vel_mean
 
     @staticmethod
     def _lerp(p: _Sample, q: _Sample, t: float) -> list[float]:
@@ -763,7 +763,7 @@ class BiasObserver:
         # positions' small error, not the velocity's (see update_velocity_values)
         prm_chord = (
             replace(prm, q_x=min(prm.q_x, CHORD_NOISE_MPS**2 * self._vel_dt))
-            if self._vel_shift
+            if self._vel_mean
             else prm
         )
         bearings = {t: y for t, y in self._bearings if t0 < t <= t1}
@@ -785,7 +785,7 @@ class BiasObserver:
             v = self._velocity_at(mid)
             for j in range(n):
                 vsum[j] += h * v[j]
-            chord = self._vel_shift and self._chord_at(mid)
+            chord = self._vel_mean and self._chord_at(mid)
             riccati.bank_predict(bank, np.array([v]) * h, h, prm_chord if chord else prm)
             y_mid = self._bearing_at(mid)
             if y_mid is not None:
@@ -1040,7 +1040,7 @@ class BiasObserver:
             s.xh1 = [s.xh1[j] + dx[j] for j in range(n)]
         self._t_c = t
         self._velocities = [(t, v)]
-        self._vel_shift = {}
+        self._vel_mean = {}
         del self._bearings[:-1]  # the last bearing, now too old to be used, keeps the horizon
         self._window.shift(gap)
         since = self._memory.observable_since_s
