@@ -201,6 +201,31 @@ def estimation_overrides(args: argparse.Namespace) -> dict[str, dict[str, object
     return o
 
 
+#: ``"section.key" -> flag`` of every settings flag, so that an error names the flag.
+SETTING_FLAGS: dict[str, str] = {
+    **{f"observer.{key}": flag for flag, key, _typ, _help in OBSERVER_FLAGS},
+    "tracker.sources": "--sources",
+    "tracker.gimbal_angles": "--gimbal-angles",
+    "tracker.mount_status_yaw": "--mount-status-yaw",
+    "tracker.landing_target_orientation": "--landing-target-orientation",
+    "tracker.landing_target_yaw_align_deg": "--landing-target-yaw-align-deg",
+    "tracker.camera_hfov_deg": "--camera-fov-deg",
+    "tracker.camera_vfov_deg": "--camera-fov-deg",
+    "tracker.sysids": "--sysid",
+    "mavlink.url": "--mavlink",
+    "mavlink.stale_after_s": "--stale-after-s",
+    "mavlink.signing_key_file": "--signing-key-file",
+    "zenoh.config_file": "--zenoh-config",
+    "zenoh.mode": "--zenoh-mode",
+    "zenoh.listen": "--zenoh-listen",
+    "zenoh.connect": "--zenoh-connect",
+    "zenoh.prefix": "--prefix",
+    "zenoh.estimate_max_rate_hz": "--estimate-rate-hz",
+    "state.file": "--state-file",
+    "log.level": "--log-level",
+}
+
+
 def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     """The ``run`` flags as a settings layer (only those given)."""
     o = estimation_overrides(args)
@@ -230,7 +255,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from mav_observer import zenoh_io
     from mav_observer.service import Service
 
-    settings = st.resolve(args.config, run_overrides(args))
+    settings = st.resolve(args.config, run_overrides(args), SETTING_FLAGS)
     if args.print_config:
         print(settings.to_toml(), end="")
         return 0
@@ -295,7 +320,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from mav_observer import settings as st
     from mav_observer.report import plot_replay
 
-    cfg = st.resolve(args.config, estimation_overrides(args)).tracker_config()
+    cfg = st.resolve(args.config, estimation_overrides(args), SETTING_FLAGS).tracker_config()
     summary = rp.replay(
         args.source,
         tracker_config=cfg,

@@ -405,15 +405,28 @@ def load_toml(path: Path) -> dict[str, Any]:
 
 
 def resolve(
-    config_file: Path | None = None, overrides: Mapping[str, Mapping[str, Any]] | None = None
+    config_file: Path | None = None,
+    overrides: Mapping[str, Mapping[str, Any]] | None = None,
+    flags: Mapping[str, str] | None = None,
 ) -> Settings:
-    """Defaults, then ``config_file``, then ``overrides`` (the flags), checked."""
+    """Defaults, then ``config_file``, then ``overrides`` (the flags), checked. ``flags``
+    (``"section.key" -> "--flag"``) names the flag of each override in error messages
+    (``command line (--k): ...``)."""
     d = defaults()
     origins: dict[str, str] = {}
     if config_file is not None:
         merge(d, load_toml(config_file), str(config_file), origins)
     if overrides:
-        merge(d, overrides, "command line", origins)
+        if not isinstance(overrides, Mapping):
+            raise ConfigError("command line: settings must be a table of sections")
+        for sec, table in overrides.items():
+            if sec not in SCHEMA or not isinstance(table, Mapping):  # merge names it
+                merge(d, {sec: table}, "command line", origins)
+                continue
+            for key, value in table.items():
+                flag = (flags or {}).get(f"{sec}.{key}")
+                origin = f"command line ({flag})" if flag else "command line"
+                merge(d, {sec: {key: value}}, origin, origins)
     check_estimator_keys(d, origins)
     return Settings.from_dict(d)
 
@@ -426,13 +439,28 @@ def check_estimator_keys(d: Mapping[str, Mapping[str, Any]], origins: Mapping[st
             continue
         for key in keys:
             origin = origins.get(f"observer.{key}")
-            if origin is not None:
-                flag = "--" + key.removesuffix("_per_s").replace("_", "-")
-                raise ConfigError(
-                    f"{origin}: observer.{key} applies to the {other!r} estimator only (this "
-                    f'one is {est!r}); choose it (estimator = "{other}", --estimator '
-                    f"{other}) or leave {key} ({flag}) out"
+            if origin is None:
+                continue
+            head = (
+                f"{origin}: observer.{key} applies to the {other!r} estimator only (this one "
+                f"is {est!r}"
+            )
+            est_origin = origins.get("observer.estimator")
+            if est_origin is not None:
+                head += f", from {est_origin}"
+            if origin.startswith("command line (--"):
+                flag = origin.removeprefix("command line (").removesuffix(")")
+                hint = f"add --estimator {other}, or leave {flag} out"
+            elif origin.startswith("command line"):
+                hint = f"add --estimator {other}, or leave {key} out"
+            elif est_origin is not None:
+                hint = f"remove {key} from the file, or choose the {other!r} estimator"
+            else:
+                hint = (
+                    f'set estimator = "{other}" in [observer] (or --estimator {other}), '
+                    f"or remove {key} from the file"
                 )
+            raise ConfigError(f"{head}); {hint}")
 
 
 def _toml_value(v: Any) -> str:

@@ -343,14 +343,14 @@ def test_restart_with_a_state_file_is_converged_within_a_second(tmp_path: Path, 
 
 def test_run_exits_with_a_message_on_a_bad_setting() -> None:
     res = subprocess.run(
-        [sys.executable, "-m", "mav_observer", "run", "--k", "-1"],
+        [sys.executable, "-m", "mav_observer", "run", "--estimator", "paper", "--k", "-1"],
         capture_output=True,
         text=True,
         timeout=60,
         check=False,
     )
-    assert res.returncode == 1
-    assert "observer.k_per_s must be > 0" in res.stderr
+    assert res.returncode == 2  # a usage error
+    assert "command line (--k): observer.k_per_s must be a finite number > 0" in res.stderr
 
 
 def test_fuzzed_garbage_among_a_valid_stream_is_counted_and_changes_nothing(

@@ -126,3 +126,35 @@ def test_printed_settings_leave_the_other_estimators_keys_as_comments(tmp_path: 
         f = tmp_path / f"{est}.toml"
         f.write_text(text)
         assert st.resolve(f).values == s.values
+
+
+def test_an_error_names_the_flag_or_file_it_came_from(tmp_path: Path) -> None:
+    flags = {"observer.bias_walk_mps_per_sqrt_s": "--bias-walk", "observer.k_per_s": "--k"}
+    with pytest.raises(
+        ConfigError,
+        match=r"command line \(--bias-walk\): observer\.bias_walk_mps_per_sqrt_s applies to "
+        r"the 'riccati' estimator only \(this one is 'paper', from command line\); add "
+        r"--estimator riccati, or leave --bias-walk out",
+    ):
+        st.resolve(
+            None,
+            {"observer": {"estimator": "paper", "bias_walk_mps_per_sqrt_s": 0.1}},
+            {"observer.bias_walk_mps_per_sqrt_s": "--bias-walk"},
+        )
+    with pytest.raises(ConfigError, match=r"command line \(--k\): observer\.k_per_s must be a"):
+        st.resolve(None, {"observer": {"estimator": "paper", "k_per_s": -1.0}}, flags)
+    f = tmp_path / "svc.toml"
+    f.write_text("[observer]\nhypotheses = 3\n")
+    with pytest.raises(
+        ConfigError,
+        match=r"svc\.toml: observer\.hypotheses applies to the 'riccati' estimator only \(this "
+        r"one is 'paper', from command line \(--estimator\)\); remove hypotheses from the file",
+    ):
+        st.resolve(f, {"observer": {"estimator": "paper"}}, {"observer.estimator": "--estimator"})
+
+
+def test_the_estimator_table_in_the_docs_is_the_settings_table() -> None:
+    text = (Path(__file__).resolve().parents[1] / "docs" / "service.md").read_text()
+    for est, keys in st.ESTIMATOR_KEYS.items():
+        row = next(ln for ln in text.splitlines() if ln.startswith(f"| `{est}`"))
+        assert {k.strip(" `") for k in row.split("|")[2].split(",")} == set(keys), row
