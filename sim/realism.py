@@ -22,6 +22,11 @@ those emissions and returns them as a reader would receive them, each knob off b
   ``v = -u_measured``: ``a`` grows by the added error); the Gauss-Markov part is noise;
 * **bearing dropouts in bursts** (``dropout_every_s``, ``dropout_length_s``): no bearing
   message for ``dropout_length_s`` every ``dropout_every_s`` (a random phase);
+* **gimbal tracking lag** (``gimbal_lag_s``): the gimbal's boresight follows the line of
+  sight through a first-order lag of that time constant (a gimbal controller behind a moving
+  target), its noise kept; the message reports where the gimbal points, the truth stays where
+  the target is: a model error the estimator is not told of (GIMBAL_DEVICE_ATTITUDE_STATUS
+  bearings; a tracked point in the image would see the target where it is);
 * **the tlog's own clock** (``tlog_jitter_s``, ``tlog_jumps``): the timestamp written for
   a message is its arrival plus a uniform ``[0, tlog_jitter_s]`` and, from scenario time
   ``t``, each ``(t, delta_s)`` jump (a logger whose clock was stepped).
@@ -42,6 +47,8 @@ from typing import Any
 
 import numpy as np
 
+from mav_observer.frames import quat_from_euler
+from mav_observer.mavlink import adapters
 from mav_observer.mavlink.dialect import MSG_ID, codec
 from sim.emitter import AUTOPILOT, Emission
 from sim.vehicle import Vehicle
@@ -66,6 +73,7 @@ _TIMED_BEARINGS = {
     MSG_ID["LANDING_TARGET"],
 }
 _LPN = MSG_ID["LOCAL_POSITION_NED"]
+_GIMBAL = MSG_ID["GIMBAL_DEVICE_ATTITUDE_STATUS"]
 _GPI = MSG_ID["GLOBAL_POSITION_INT"]
 
 
@@ -103,6 +111,7 @@ class Realism:
     velocity_bias_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dropout_every_s: float = 0.0
     dropout_length_s: float = 0.0
+    gimbal_lag_s: float = 0.0
     tlog_jitter_s: float = 0.0
     tlog_jumps: tuple[tuple[float, float], ...] = ()
     seed: int = 0
@@ -116,6 +125,7 @@ class Realism:
             "velocity_gm_std_mps",
             "dropout_every_s",
             "dropout_length_s",
+            "gimbal_lag_s",
             "tlog_jitter_s",
         ):
             v = getattr(self, name)
@@ -133,6 +143,31 @@ class Realism:
             raise ValueError(
                 f"velocity_bias_ned_mps must have 3 values, got {self.velocity_bias_ned_mps!r}"
             )
+
+    def _lag(self, msg: Any, truth: dict[str, Any], lagged: list[Any], enc: Any) -> bytes:
+        """The gimbal message re-made to point along the lagged line of sight (its noise,
+        the difference between its boresight and the true line of sight, kept)."""
+        x = np.asarray(truth["rel_pos_ned_m"], dtype=float)
+        los = x / np.linalg.norm(x)
+        t = float(truth["t_boot_s"])
+        if lagged[0] is None:
+            lagged[0] = los
+        else:
+            f = math.exp(-(t - lagged[1]) / self.gimbal_lag_s)
+            y = f * lagged[0] + (1.0 - f) * los
+            lagged[0] = y / np.linalg.norm(y)
+        lagged[1] = t
+        yaw_v = float(truth["attitude_rpy_rad"][2])
+        earth = adapters.gimbal_yaw_frame(msg.flags) == "earth"
+        sent = np.asarray(
+            adapters.gimbal_boresight(tuple(msg.q), msg.flags, 0, vehicle_yaw=yaw_v), dtype=float
+        )
+        y = lagged[0] + (sent - los)
+        y /= np.linalg.norm(y)
+        yaw = math.atan2(y[1], y[0]) - (0.0 if earth else yaw_v)
+        pitch = -math.asin(max(-1.0, min(1.0, y[2])))
+        msg.q = list(quat_from_euler(0.0, pitch, yaw))
+        return bytes(msg.pack(enc))
 
     def component_time_s(self, t_boot_s: float) -> float:
         """The component's clock reading (s) at the autopilot's ``t_boot_s``."""
@@ -163,6 +198,7 @@ class Realism:
         )
         gm_t: float | None = None
         phase = rng.uniform(0.0, self.dropout_every_s) if self.dropout_every_s else 0.0
+        lagged: list[Any] = [None, None]  # the lagged line of sight (NED) and its time
         out: list[tuple[float, int, bytes, dict[str, Any] | None]] = []
         for k, em in enumerate(emissions):
             frame, truth = em.frame, em.truth
@@ -194,6 +230,8 @@ class Realism:
                         round(msg.vz + 100 * err[2]),
                     )
                 frame = bytes(msg.pack(enc_ap))
+            if self.gimbal_lag_s and mid == _GIMBAL and truth is not None:
+                frame = self._lag(dec.decode(bytearray(frame)), truth, lagged, enc_ap)
             if enc_comp is not None and mid in _TIMED_BEARINGS:
                 msg = dec.decode(bytearray(frame))
                 if hasattr(msg, "time_boot_ms"):

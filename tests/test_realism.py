@@ -161,6 +161,36 @@ def test_the_truths_a_integrates_the_measured_velocity_to_the_truths_position() 
     np.testing.assert_allclose(dx, integral + a * (t1["t_boot_s"] - t0["t_boot_s"]), atol=0.05)
 
 
+def test_gimbal_lag_makes_the_boresight_follow_the_line_of_sight_late() -> None:
+    from mav_observer.mavlink import adapters
+
+    lag = 0.5
+    arrivals, _ = received(realism.Realism(gimbal_lag_s=lag), duration_s=40.0, bearing_hz=20.0)
+    err_now, err_lagged, turned = [], [], []
+    los_hist = []
+    for a, m in decoded(arrivals, GIMBAL):
+        x = np.array(a.truth["rel_pos_ned_m"])
+        los = x / np.linalg.norm(x)
+        los_hist.append((a.truth["t_boot_s"], los))
+        b = np.array(
+            adapters.gimbal_boresight(
+                tuple(m.q), m.flags, 0, vehicle_yaw=a.truth["attitude_rpy_rad"][2]
+            )
+        )
+        if a.truth["t_boot_s"] - los_hist[0][0] < 5.0:
+            continue  # the lag settles
+        # a first-order lag trails a steadily turning line of sight by its time constant
+        t_back = a.truth["t_boot_s"] - lag
+        old = min(los_hist, key=lambda h: abs(h[0] - t_back))[1]
+        err_now.append(math.degrees(math.acos(min(1.0, float(b @ los)))))
+        err_lagged.append(math.degrees(math.acos(min(1.0, float(b @ old)))))
+        turned.append(math.degrees(math.acos(min(1.0, float(los @ old)))))
+    # the orbit turns the line of sight by 3.7 deg in 0.5 s: the boresight is that far behind
+    assert np.median(err_now) == pytest.approx(np.median(turned), rel=0.1)
+    assert np.median(turned) > 3.0
+    assert np.median(err_lagged) < 0.3  # (a first-order lag also shrinks the arc a little)
+
+
 def test_dropout_bursts_silence_the_bearings() -> None:
     link = realism.Realism(dropout_every_s=10.0, dropout_length_s=3.0, seed=5)
     full, _ = received(realism.Realism(), duration_s=100.0)
@@ -191,5 +221,7 @@ def test_bad_knobs_are_errors_naming_them() -> None:
         realism.Realism(jitter_s=-1.0)
     with pytest.raises(ValueError, match="dropout_length_s"):
         realism.Realism(dropout_every_s=5.0, dropout_length_s=6.0)
+    with pytest.raises(ValueError, match="gimbal_lag_s"):
+        realism.Realism(gimbal_lag_s=-0.1)
     with pytest.raises(ValueError, match="component_id"):
         realism.Realism(component_id=300)

@@ -204,6 +204,15 @@ CASES: dict[str, E2ECase] = {
             settings=TOLD_05,
         ),
         E2ECase(
+            "gimbal_lag",
+            "gimbal tracking lag: the boresight trails the line of sight by 0.1 s (a model error)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05},
+            realism={"gimbal_lag_s": 0.1},
+            settings=TOLD_05,
+        ),
+        E2ECase(
             "tlog_clock",
             "the tlog's own clock: 30 ms jitter, jumps of +500 s and -200 s",
             "figure8",
