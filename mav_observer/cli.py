@@ -59,7 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--output", "-o", type=Path, help="estimate records, JSON Lines")
     rp.add_argument("--csv", type=Path, help="estimate records, CSV")
     rp.add_argument("--plot", type=Path, help="report figure (PNG; needs matplotlib)")
-    rp.add_argument("--truth", type=Path, help="the emitter's truth file (JSON Lines): errors too")
+    rp.add_argument(
+        "--truth", type=Path, help="a reference track, JSON Lines (docs/schema.md): errors too"
+    )
     rp.add_argument("--summary-json", type=Path, help="write the summary as JSON")
     rp.add_argument(
         "--config",
@@ -316,6 +318,7 @@ def cmd_listen(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from mav_observer import reference
     from mav_observer import replay as rp
     from mav_observer import settings as st
     from mav_observer.report import plot_replay
@@ -332,8 +335,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     )
     errors = None
     if args.truth:
-        truth = rp.read_truth(args.truth)
-        errors = {k: rp.truth_errors(s, truth[k]) for k, s in summary.series.items() if k in truth}
+        track = reference.read(args.truth)
+        errors = {k: reference.errors(s, track[k]) for k, s in summary.series.items() if k in track}
     if args.plot:
         plot_replay(
             summary.series,
@@ -347,7 +350,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(summary.text())
         if errors:
             for key, err in errors.items():
-                last = rp.last_third_errors(err)
+                last = reference.last_third(err)
                 print(
                     f"against truth, {key}, last third: worst position error "
                     f"{100 * last['max_rel_pos_err']:.2f} % of range, worst bias error "
@@ -356,7 +359,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.summary_json:
         doc = summary.to_dict()
         if errors:
-            doc["truth_last_third"] = {k: rp.last_third_errors(e) for k, e in errors.items()}
+            doc["truth_last_third"] = {k: reference.last_third(e) for k, e in errors.items()}
         args.summary_json.write_text(json.dumps(doc, indent=1))
     return 0
 

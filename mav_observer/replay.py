@@ -8,7 +8,6 @@ the tracker uses; a connection string is read live (``--duration``).
 from __future__ import annotations
 
 import csv
-import json
 import logging
 import math
 import sys
@@ -378,72 +377,3 @@ def _check_usable(summary: ReplaySummary, tracker: Tracker) -> None:
             exit_code=3,
             summary=summary,
         )
-
-
-# -- truth (the emitter's JSON Lines) ---------------------------------------------
-
-
-def read_truth(path: Path) -> dict[str, dict[str, list[Any]]]:
-    """Emitter truth file -> per ``"sysid/target"``: ``t_boot_s``, ``rel_pos_ned_m``,
-    ``bias_ned_mps`` lists (time ordered)."""
-    out: dict[str, dict[str, list[Any]]] = {}
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise ReplayError(f"cannot read the truth file: {exc}") from exc
-    for lineno, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            d = json.loads(line)
-            key = f"{int(d['sysid'])}/{d['target']}"
-            t = float(d["t_boot_s"])
-            x = [float(v) for v in d["rel_pos_ned_m"]]
-            a = [float(v) for v in d["bias_ned_mps"]]
-        except (ValueError, KeyError, TypeError) as exc:
-            raise ReplayError(f"{path}:{lineno}: bad truth record: {exc!r}") from exc
-        s = out.setdefault(key, {"t_boot_s": [], "rel_pos_ned_m": [], "bias_ned_mps": []})
-        s["t_boot_s"].append(t)
-        s["rel_pos_ned_m"].append(x)
-        s["bias_ned_mps"].append(a)
-    return out
-
-
-def truth_errors(series: Series, truth: dict[str, list[Any]]) -> dict[str, Any]:
-    """Position and bias errors of ``series`` against the truth interpolated at its times."""
-    import numpy as np
-
-    tt = np.asarray(truth["t_boot_s"])
-    order = np.argsort(tt, kind="stable")
-    tt = tt[order]
-    xs = np.asarray(truth["rel_pos_ned_m"])[order]
-    as_ = np.asarray(truth["bias_ned_mps"])[order]
-    t = np.asarray(series.t_boot_s)
-    inside = (t >= tt[0]) & (t <= tt[-1])
-    t = t[inside]
-    x_true = np.column_stack([np.interp(t, tt, xs[:, i]) for i in range(3)])
-    a_true = np.column_stack([np.interp(t, tt, as_[:, i]) for i in range(3)])
-    xhat = np.asarray(series.rel_pos)[inside]
-    ahat = np.asarray(series.bias)[inside]
-    return {
-        "t_boot_s": t,
-        "pos_err_m": np.linalg.norm(xhat - x_true, axis=1),
-        "range_true_m": np.linalg.norm(x_true, axis=1),
-        "bias_err_mps": np.linalg.norm(ahat - a_true, axis=1),
-    }
-
-
-def last_third_errors(errors: dict[str, Any]) -> dict[str, float]:
-    """RMS-free summary over the last third of the run: worst position error relative to the
-    range, worst bias error."""
-    import numpy as np
-
-    t = errors["t_boot_s"]
-    if len(t) == 0:
-        return {"max_rel_pos_err": math.nan, "max_bias_err_mps": math.nan}
-    sel = t >= t[0] + 2.0 * (t[-1] - t[0]) / 3.0
-    return {
-        "max_rel_pos_err": float(np.max(errors["pos_err_m"][sel] / errors["range_true_m"][sel])),
-        "max_bias_err_mps": float(np.max(errors["bias_err_mps"][sel])),
-        "samples": int(np.sum(sel)),
-    }

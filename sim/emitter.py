@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import heapq
-import json
 import math
 import struct
 import time
@@ -48,6 +47,7 @@ import numpy as np
 from mav_observer.frames import quat_from_euler
 from mav_observer.mavlink import adapters
 from mav_observer.mavlink.dialect import codec, connect, mavlink
+from sim import truth as truth_file
 from sim.scenarios import Scenario
 from sim.stream import perturb_bearings
 from sim.vehicle import Vehicle, VehicleState
@@ -283,18 +283,18 @@ class Emitter:
             frames = self._bearing_frames(t, s, los)
             if not frames:
                 continue
-            truth = {
-                "t_unix_s": self.unix_s(t + cfg.latency_s),
-                "t_boot_s": self.boot_ms(t) / 1000.0,
-                "sysid": cfg.sysid,
-                "target": target,
-                "rel_pos_ned_m": s.rel_pos_ned_m.tolist(),
-                "bias_ned_mps": self.scenario.a_mps.tolist(),
-                "target_pos_ned_m": s.target_pos_ned_m.tolist(),
-                "vehicle_pos_ned_m": s.pos_ned_m.tolist(),
-                "vehicle_vel_meas_ned_mps": s.vel_meas_ned_mps.tolist(),
-                "attitude_rpy_rad": [s.roll, s.pitch, s.yaw],
-            }
+            truth = truth_file.record(
+                t_unix_s=self.unix_s(t + cfg.latency_s),
+                t_boot_s=self.boot_ms(t) / 1000.0,
+                sysid=cfg.sysid,
+                target=target,
+                rel_pos_ned_m=s.rel_pos_ned_m,
+                bias_ned_mps=self.scenario.a_mps,
+                target_pos_ned_m=s.target_pos_ned_m,
+                vehicle_pos_ned_m=s.pos_ned_m,
+                vehicle_vel_meas_ned_mps=s.vel_meas_ned_mps,
+                attitude_rpy_rad=(s.roll, s.pitch, s.yaw),
+            )
             for i, frame in enumerate(frames):
                 yield Emission(
                     t + cfg.latency_s + 1e-5 * i, frame, truth if i == len(frames) - 1 else None
@@ -528,7 +528,7 @@ def run(
             if tw is not None:
                 tw.write(t_unix, em.frame)
             if th is not None and em.truth is not None:
-                th.write(json.dumps(em.truth) + "\n")
+                th.write(truth_file.dumps(em.truth) + "\n")
             if on_truth is not None and em.truth is not None:
                 on_truth(em.truth)
             report.messages += 1

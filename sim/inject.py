@@ -8,8 +8,8 @@ LOCAL_POSITION_NED), built by inverting the reader's frame chain exactly as
 
 * a new tlog: every original record, byte for byte and in order, with the injected frames
   interleaved (LOCAL_POSITION_NED rewritten only with ``vel_error_ned_mps``);
-* the truth in the emitter's JSON Lines format (one line per injected bearing; read by
-  :func:`mav_observer.replay.read_truth`).
+* the truth in the format of :mod:`sim.truth` (one line per injected bearing; a reference
+  track for ``replay --truth``).
 
 How the stream is made (all times on the autopilot's boot clock, ``time_boot_ms``):
 
@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import bisect
 import functools
-import json
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -73,6 +72,7 @@ from mav_observer.mavlink import adapters
 from mav_observer.mavlink.dialect import MSG_ID, codec, mavlink
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
 from mav_observer.mavlink.tlog import MAGIC_V1, MAGIC_V2, TS_JUMP_MAX_US, TS_MAX_US, TS_MIN_US
+from sim import truth as truth_file
 from sim.emitter import TARGET_OF
 from sim.stream import perturb_bearings
 
@@ -753,20 +753,20 @@ def inject(records: Sequence[TlogRecord], config: InjectConfig) -> InjectResult:
             inserts.append((pos, int(t_ms[k]), t_us, frame))
             ranges.append(float(rng_m[k]))
             truth.append(
-                {
-                    "t_unix_s": t_us * 1e-6,
-                    "t_boot_s": t_ms[k] / 1000.0,
-                    "sysid": sysid,
-                    "target": target_name,
-                    "rel_pos_ned_m": rel[k].tolist(),
-                    "bias_ned_mps": err.tolist(),
-                    "target_pos_ned_m": target.tolist(),
-                    "vehicle_pos_ned_m": pv[k, :3].tolist(),
-                    "vehicle_vel_meas_ned_mps": (pv[k, 3:6] + err).tolist(),
-                    "attitude_rpy_rad": rpy[k].tolist(),
-                    "bearing_ned": y[k].tolist(),
-                    "epoch": e,
-                }
+                truth_file.record(
+                    t_unix_s=t_us * 1e-6,
+                    t_boot_s=t_ms[k] / 1000.0,
+                    sysid=sysid,
+                    target=target_name,
+                    rel_pos_ned_m=rel[k],
+                    bias_ned_mps=err,
+                    target_pos_ned_m=target,
+                    vehicle_pos_ned_m=pv[k, :3],
+                    vehicle_vel_meas_ned_mps=pv[k, 3:6] + err,
+                    attitude_rpy_rad=rpy[k],
+                    bearing_ned=y[k],
+                    epoch=e,
+                )
             )
     # rewritten LOCAL_POSITION_NED
     replaced: dict[int, bytes] = {}
@@ -815,9 +815,7 @@ def inject_file(
     with open(out_path, "wb") as fh:
         for chunk in result.records:
             fh.write(chunk)
-    with open(truth_path, "w", encoding="utf-8") as fh:
-        for d in result.truth:
-            fh.write(json.dumps(d) + "\n")
+    truth_file.write(truth_path, result.truth)
     return result
 
 

@@ -37,7 +37,6 @@ every message staying exact (the bearing messages are built from the attitude of
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 from collections.abc import Iterable
@@ -50,6 +49,7 @@ import numpy as np
 from mav_observer.frames import quat_from_euler
 from mav_observer.mavlink import adapters
 from mav_observer.mavlink.dialect import MSG_ID, codec
+from sim import truth as truth_file
 from sim.emitter import AUTOPILOT, Emission
 from sim.vehicle import Vehicle
 
@@ -274,7 +274,7 @@ def write(
         for a in arrivals:
             fh.write(struct.pack(">Q", max(0, round(a.t_tlog_unix_s * 1e6))) + a.frame)
             if a.truth is not None:
-                th.write(json.dumps(a.truth) + "\n")
+                th.write(truth_file.dumps(a.truth) + "\n")
             n += 1
     return n
 

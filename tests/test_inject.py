@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from mavmsg import TLOGS
 
+from mav_observer import reference
 from mav_observer import replay as rp
 from mav_observer.batch import displacement_at, fit_batch
 from mav_observer.frames import euler_to_dcm
@@ -18,6 +19,7 @@ from mav_observer.mavlink.dialect import MSG_ID
 from mav_observer.mavlink.fastdecode import FastDecoder
 from mav_observer.mavlink.tlog import TlogReader
 from sim import inject as inj
+from sim import truth as truth_file
 from sim.__main__ import main as sim_main
 
 BRUNO = TLOGS / "real_copter_bruno_mission_132614.tlog"
@@ -31,7 +33,7 @@ TARGET = (20.0, -150.0, 5.0)
 def write(path: Path, result: inj.InjectResult) -> tuple[Path, Path]:
     path.write_bytes(b"".join(result.records))
     truth = path.with_suffix(".truth.jsonl")
-    truth.write_text("".join(json.dumps(d) + "\n" for d in result.truth))
+    truth_file.write(truth, result.truth)
     return path, truth
 
 
@@ -64,8 +66,8 @@ def test_bruno_replays_with_the_injected_gimbal(bruno: dict) -> None:
     assert s.used["GIMBAL_DEVICE_ATTITUDE_STATUS"] == res.injected
     # placed so that the autopilot clock never goes back, each stamp once
     assert "out_of_order" not in s.skipped and "duplicate" not in s.skipped
-    truth = rp.read_truth(bruno["truth"])
-    errors = rp.truth_errors(s.series["10/gimbal"], truth["10/gimbal"])
+    truth = reference.read(bruno["truth"])
+    errors = reference.errors(s.series["10/gimbal"], truth["10/gimbal"])
     assert len(errors["t_boot_s"]) > 1500
 
 
@@ -214,8 +216,8 @@ def test_phoenix_mavlink1_log_gets_mavlink2_bearings(phoenix_slice: Path, tmp_pa
     s = rp.replay(str(out), keep_series=True)
     assert "1/gimbal" in s.targets
     assert "out_of_order" not in s.skipped and "duplicate" not in s.skipped
-    tr = rp.read_truth(truth)
-    assert len(rp.truth_errors(s.series["1/gimbal"], tr["1/gimbal"])["t_boot_s"]) > 1000
+    tr = reference.read(truth)
+    assert len(reference.errors(s.series["1/gimbal"], tr["1/gimbal"])["t_boot_s"]) > 1000
 
 
 def test_auto_target_is_under_the_middle_of_the_flight(bruno: dict) -> None:

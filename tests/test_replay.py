@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from mavmsg import TLOGS
 
+from mav_observer import reference
 from mav_observer import replay as rp
 from mav_observer.cli import main
 from mav_observer.mavlink.tracker import TrackerConfig
@@ -41,8 +42,8 @@ def test_every_source_converges_to_the_truth(emitted, bearing: str) -> None:
     tl, truth_path = emitted[bearing]
     s = rp.replay(str(tl), keep_series=True)
     key = f"1/{TARGET_OF[bearing]}"
-    truth = rp.read_truth(truth_path)
-    last = rp.last_third_errors(rp.truth_errors(s.series[key], truth[key]))
+    truth = reference.read(truth_path)
+    last = reference.last_third(reference.errors(s.series[key], truth[key]))
     assert last["samples"] > 900
     assert last["max_rel_pos_err"] < 0.05
     assert last["max_bias_err_mps"] < 0.1

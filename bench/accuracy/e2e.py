@@ -44,6 +44,7 @@ from mav_observer.observer import ObserverConfig
 from mav_observer.replay import replay
 from sim import emitter as em
 from sim import realism, scenarios
+from sim import truth as truth_file
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "accuracy.md"
 #: The window of the steady metrics: the last third of a run.
@@ -358,7 +359,7 @@ def run_one(
         t_replay = time.perf_counter() - t_wall - t_emit
         target = em.TARGET_OF[case.bearing]
         records = [r for r in read_jsonl(out) if r["target"] == target]
-        truth = [r for r in read_jsonl(truth_path) if r["target"] == target]
+        truth = truth_file.read(truth_path, target)
     dt_v = 1.0 / cfg.position_hz
     m = score(
         records,
