@@ -432,7 +432,7 @@ def interp_position(series: _Series, t_s: np.ndarray) -> np.ndarray:
 def interp_attitude(series: _Series, t_s: np.ndarray) -> np.ndarray:
     """Roll, pitch, yaw (rad) at ``t_s``, (T, 3): linear between the samples around (yaw
     unwrapped) when they are at most :data:`ATTITUDE_INTERP_MAX_S` apart, else the nearest,
-    as the tracker's :class:`~mav_observer.mavlink.tracker.AttitudeHistory` does."""
+    as the tracker's :class:`~mav_observer.mavlink.attitude.AttitudeHistory` does."""
     ts, v = series.t_boot_s, series.values
     out = np.empty((len(t_s), 3))
     for k, t in enumerate(t_s):

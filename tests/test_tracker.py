@@ -9,7 +9,7 @@ from mavmsg import T0_UNIX, landing_target_fields, message
 
 from mav_observer.errors import ConfigError
 from mav_observer.mavlink.dialect import codec
-from mav_observer.mavlink.tracker import AttitudeHistory, Tracker, TrackerConfig
+from mav_observer.mavlink.tracker import Tracker, TrackerConfig
 from mav_observer.observer import ObserverConfig
 from sim import fuzz
 
@@ -166,15 +166,6 @@ def test_sources_and_sysids_are_filtered() -> None:
         TrackerConfig(gimbal_angles="sideways")
 
 
-def test_attitude_history_interpolates_yaw_across_the_wrap() -> None:
-    h = AttitudeHistory()
-    h.add(1.0, 0.0, 0.0, math.radians(179.0))
-    h.add(2.0, 0.2, 0.0, math.radians(-179.0))
-    r, _, y = h.at(1.5, 0.5)
-    assert r == pytest.approx(0.1) and math.degrees(y) == pytest.approx(180.0)
-    assert h.at(2.6, 0.5) is None and h.at(0.4, 0.5) is None
-
-
 @functools.cache
 def _converged_tracker():
     from mav_observer.mavlink.dialect import codec
@@ -271,7 +262,7 @@ def test_a_heartbeat_flood_from_another_sysid_changes_nothing() -> None:
         msgs += [m, *([hb] * 83)]
     tr = Tracker()
     assert _estimates(feed(tr, msgs)) == clean
-    assert set(tr.vehicles) == {1, 77} and not tr.vehicles[77].observers
+    assert set(tr.vehicles) == {1, 77} and not tr.vehicles[77].targets
     assert tr.received["HEARTBEAT"] >= 9_960
 
 

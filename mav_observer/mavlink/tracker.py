@@ -8,6 +8,12 @@ latest position and velocity and its cameras' fields of view, turns bearing mess
 :class:`~mav_observer.records.EstimateRecord` for each bearing the observers accept. A message
 that cannot be used is counted by reason and skipped; nothing already received is lost.
 
+Roles: this module turns messages into samples, per vehicle; the vehicle's attitude over time
+is :mod:`~mav_observer.mavlink.attitude`'s; the observers of a vehicle's targets, and how they
+are saved and resumed, are :mod:`~mav_observer.targets`'. Replay and the service run the same
+loop body, :meth:`Tracker.handle` (``(t, message) -> records``), and read it through its
+public methods.
+
 Targets and the messages that feed them (``sources``):
 
 ==================  =============================================  ====================
@@ -33,14 +39,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError, StateError
+from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
 from mav_observer.mavlink import adapters, signing
 from mav_observer.mavlink.adapters import Skip
+from mav_observer.mavlink.attitude import AttitudeHistory
 from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.mavlink.timebase import ClockMap
 from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
+from mav_observer.targets import Targets, VehicleFix, check_saved
 
 log = logging.getLogger(__name__)
 
@@ -172,110 +180,6 @@ class TrackerConfig:
         return frozenset(MSG_ID[n] for n in names)
 
 
-class AttitudeHistory:
-    """Recent vehicle attitudes ``(t_s, roll, pitch, yaw)`` on the autopilot clock, bounded,
-    with the latest Euler angle rates (rad/s) for extrapolation."""
-
-    def __init__(self, maxlen: int = 128) -> None:
-        self._h: deque[tuple[float, float, float, float]] = deque(maxlen=maxlen)
-        self._rates: tuple[float, float, float] | None = None
-        #: the stream's typical interval (s), a running mean of the intervals up to 2 s
-        self.interval_s = 0.0
-
-    @property
-    def has_rates(self) -> bool:
-        """True once the latest attitude has rates to extrapolate with."""
-        return self._rates is not None
-
-    @property
-    def latest_t_s(self) -> float | None:
-        """Time of the latest attitude (s), ``None`` before any."""
-        return self._h[-1][0] if self._h else None
-
-    def add(
-        self,
-        t: float,
-        roll: float,
-        pitch: float,
-        yaw: float,
-        body_rates: tuple[float, float, float] | None = None,
-    ) -> None:
-        """Add an attitude; ``body_rates`` (p, q, r in rad/s, FRD body frame) when the message
-        has them (ATTITUDE's rollspeed, pitchspeed, yawspeed), else the rates come from the
-        difference with the previous attitude."""
-        h = self._h
-        if h and t < h[-1][0]:
-            return  # older than what we have: keep the history ordered
-        if h and t == h[-1][0]:
-            h.pop()
-        if h and 0.0 < t - h[-1][0] <= 2.0:
-            dt = t - h[-1][0]
-            self.interval_s = dt if self.interval_s == 0.0 else 0.9 * self.interval_s + 0.1 * dt
-        rates = None
-        if body_rates is not None and all(map(math.isfinite, body_rates)) and any(body_rates):
-            rates = euler_rates(roll, pitch, body_rates)
-        elif h and 0.0 < t - h[-1][0] <= 2.0:
-            a = h[-1]
-            dt = t - a[0]
-            rates = (
-                (roll - a[1]) / dt,
-                (pitch - a[2]) / dt,
-                math.remainder(yaw - a[3], 2 * math.pi) / dt,
-            )
-        self._rates = rates
-        h.append((t, roll, pitch, yaw))
-
-    def at(self, t: float, max_age_s: float) -> tuple[float, float, float] | None:
-        """Attitude at ``t``: interpolated between the samples around it (yaw unwrapped) when
-        they are at most ``2 max_age_s`` or 2.5 stream intervals apart (a 1 Hz ATTITUDE of an
-        old telemetry link is interpolated); after the latest one, extrapolated with its
-        rates for at most ``max_age_s`` (held when no rate is known); else the nearest one
-        within ``max_age_s``; ``None`` if there is none."""
-        h = self._h
-        if not h:
-            return None
-        last = h[-1]
-        if t >= last[0]:
-            dt = t - last[0]
-            if dt > max_age_s:
-                return None
-            r = self._rates
-            if r is None or dt == 0.0:
-                return last[1:]
-            return (last[1] + r[0] * dt, last[2] + r[1] * dt, last[3] + r[2] * dt)
-        for i in range(len(h) - 2, -1, -1):
-            a = h[i]
-            if a[0] <= t:
-                b = h[i + 1]
-                if b[0] - a[0] > max(2 * max_age_s, 2.5 * self.interval_s):
-                    near = a if t - a[0] <= b[0] - t else b
-                    return near[1:] if abs(near[0] - t) <= max_age_s else None
-                f = (t - a[0]) / (b[0] - a[0])
-                dyaw = math.remainder(b[3] - a[3], 2 * math.pi)
-                return (
-                    a[1] + f * (b[1] - a[1]),
-                    a[2] + f * (b[2] - a[2]),
-                    a[3] + f * dyaw,
-                )
-        first = h[0]
-        return first[1:] if first[0] - t <= max_age_s else None
-
-
-def euler_rates(
-    roll: float, pitch: float, body_rates: tuple[float, float, float]
-) -> tuple[float, float, float]:
-    """Rates of (roll, pitch, yaw) (rad/s) from the body rates ``(p, q, r)`` (rad/s, FRD)
-    at that attitude (ZYX Euler angles; singular at pitch +-90 deg, where the yaw rate is
-    taken as ``r``)."""
-    p, q, r = body_rates
-    sr, cr = math.sin(roll), math.cos(roll)
-    cp = math.cos(pitch)
-    if abs(cp) < 1e-3:
-        return (p, q, r)
-    tp = math.sin(pitch) / cp
-    return (p + (q * sr + r * cr) * tp, q * cr - r * sr, (q * sr + r * cr) / cp)
-
-
 @dataclass
 class _Waiting:
     """A bearing message waiting for the vehicle attitude of its time."""
@@ -290,12 +194,13 @@ class _Waiting:
 @dataclass
 class _Vehicle:
     sysid: int
+    #: the observers of this vehicle's targets (:mod:`mav_observer.targets`)
+    targets: Targets
     clocks: dict[Any, ClockMap] = field(default_factory=dict)
     autopilot_compid: int | None = None
     attitude: AttitudeHistory = field(default_factory=AttitudeHistory)
     position: tuple[float, Vec3, Vec3] | None = None  # t, pos, vel (NED)
     velocity: tuple[float, list[float]] | None = None  # latest (t, v) on the autopilot clock
-    observers: dict[str, tuple[BiasObserver, str]] = field(default_factory=dict)
     #: latest gimbal or mount attitude: ``(t, R_ned_cam)``, or ``(t, (q, flags, yaw,
     #: delta_yaw))`` from a gimbal, turned into the matrix only when a tracked point needs it
     camera_attitude: tuple[float, Any] | None = None
@@ -374,7 +279,7 @@ class Tracker:
             return []
         veh = self.vehicles.get(sysid)
         if veh is None:
-            veh = self.vehicles[sysid] = _Vehicle(sysid)
+            veh = self.vehicles[sysid] = _Vehicle(sysid, Targets(self.config.observer))
         out: list[EstimateRecord] = []
         stamp = getattr(msg, "time_boot_ms", None)
         if stamp is not None:
@@ -578,11 +483,13 @@ class Tracker:
             "vehicle %d: autopilot clock %s, resetting its %d observer(s)",
             veh.sysid,
             how,
-            len(veh.observers),
+            len(veh.targets),
         )
         self._note(veh, f"autopilot_{event}")
         keep = veh.autopilot_compid
-        fresh = _Vehicle(veh.sysid, autopilot_compid=keep, skipped=veh.skipped)
+        fresh = _Vehicle(
+            veh.sysid, Targets(self.config.observer), autopilot_compid=keep, skipped=veh.skipped
+        )
         if self._pending.pop(veh.sysid, None):
             log.warning("vehicle %d: saved observers discarded (autopilot rebooted)", veh.sysid)
         veh.__dict__.update(fresh.__dict__)
@@ -617,13 +524,10 @@ class Tracker:
         veh.velocity = (tb, v)
         if veh.sysid in self._pending:
             self._resume_saved(veh, self._pending.pop(veh.sysid))
-        for obs, _ in veh.observers.values():
-            try:
-                obs.update_velocity_values(tb, v, mean_v)
-            except InvalidSampleError as exc:
-                self.skipped["refused_velocity"] += 1
-                veh.skipped["refused_velocity"] += 1
-                log.debug("vehicle %d: velocity refused: %s", veh.sysid, exc)
+        for exc in veh.targets.velocity(tb, v, mean_v):
+            self.skipped["refused_velocity"] += 1
+            veh.skipped["refused_velocity"] += 1
+            log.debug("vehicle %d: velocity refused: %s", veh.sysid, exc)
         if "home" in self.enabled and veh.home is not None:
             h = veh.home
             self._bearing(
@@ -891,19 +795,14 @@ class Tracker:
             raise Skip("zero_length", f"bearing {direction}")
         inv = 1.0 / math.sqrt(n2)
         y = [direction[0] * inv, direction[1] * inv, direction[2] * inv]
-        entry = veh.observers.get(target)
-        if entry is None:
-            obs = BiasObserver(self.config.observer)
-            if veh.velocity is not None:
-                obs.update_velocity_values(*veh.velocity)
-            veh.observers[target] = entry = (obs, source)
-            self.events["targets"] += 1
-            log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
         try:
-            est = entry[0].update_bearing_values(tb, y)
+            est, new = veh.targets.bearing(target, source, tb, y, veh.velocity)
         except InvalidSampleError as exc:
             raise Skip("refused_bearing", str(exc)) from exc
-        if not entry[0].started:  # no velocity yet: the bearing waits, nothing to report
+        if new:
+            self.events["targets"] += 1
+            log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
+        if est is None:  # no velocity yet: the bearing waits, nothing to report
             self.events["estimates_withheld_no_velocity"] += 1
             return
         vpos = None
@@ -925,28 +824,11 @@ class Tracker:
     def export_state(self) -> list[dict[str, Any]]:
         """Every started observer with what :meth:`restore` needs to carry it across a gap:
         its vehicle's latest position and velocity (LOCAL_POSITION_NED frame, autopilot clock)
-        and the whole observer (:meth:`BiasObserver.to_dict`). JSON-serialisable."""
+        and the whole observer (:meth:`Targets.export`). JSON-serialisable."""
         out: list[dict[str, Any]] = []
         for sysid, veh in self.vehicles.items():
-            if veh.position is None:
-                continue
-            tp, pos, vel = veh.position
-            for target, (obs, source) in veh.observers.items():
-                if not obs.started:
-                    continue
-                out.append(
-                    {
-                        "sysid": sysid,
-                        "target": target,
-                        "source": source,
-                        "vehicle": {
-                            "t_boot_s": tp,
-                            "pos_ned_m": list(pos),
-                            "vel_ned_mps": list(vel),
-                        },
-                        "observer": obs.to_dict(),
-                    }
-                )
+            if veh.position is not None:
+                out.extend(veh.targets.export(sysid, VehicleFix(*veh.position)))
         # observers restored but whose vehicle has not come back yet are kept as they were
         for entries in self._pending.values():
             out.extend(entries)
@@ -954,79 +836,39 @@ class Tracker:
 
     def restore(self, entries: list[dict[str, Any]]) -> None:
         """Take observers saved by :meth:`export_state`. Each waits for its vehicle's first
-        LOCAL_POSITION_NED, then resumes (:meth:`BiasObserver.resume`) moved by minus the
+        LOCAL_POSITION_NED, then resumes (:meth:`Targets.resume`) moved by minus the
         vehicle's displacement since it was saved: the target is assumed to have stayed where
         it was in the local frame (a moving target resumes off by its own displacement, which
         the observer then corrects). It is discarded, with a warning, if the autopilot's
         clock went back (a reboot: the local frame may have moved) or more than
         ``config.restore_max_gap_s`` of vehicle time passed. Raises :class:`StateError` naming
-        the bad entry; nothing is taken then."""
-        checked: dict[int, list[dict[str, Any]]] = {}
-        for i, e in enumerate(entries):
-            where = f"observers[{i}]"
-            if not isinstance(e, dict):
-                raise StateError(f"{where} must be a table, got {type(e).__name__}")
-            sysid, target, source = e.get("sysid"), e.get("target"), e.get("source")
-            if not isinstance(sysid, int) or isinstance(sysid, bool) or not 0 < sysid < 256:
-                raise StateError(f"{where}.sysid must be an integer in 1..255, got {sysid!r}")
-            if not isinstance(target, str) or not target:
-                raise StateError(f"{where}.target must be a non-empty string, got {target!r}")
-            if not isinstance(source, str):
-                raise StateError(f"{where}.source must be a string, got {source!r}")
-            veh = e.get("vehicle")
-            try:
-                tp = float(veh["t_boot_s"])  # type: ignore[index]
-                pos = [float(c) for c in veh["pos_ned_m"]]  # type: ignore[index]
-                vel = [float(c) for c in veh["vel_ned_mps"]]  # type: ignore[index]
-            except (KeyError, TypeError, ValueError) as exc:
-                raise StateError(f"{where}.vehicle is malformed: {exc!r}") from exc
-            if len(pos) != 3 or len(vel) != 3 or not all(map(math.isfinite, (tp, *pos, *vel))):
-                raise StateError(f"{where}.vehicle must hold finite 3-vectors and a time")
-            try:
-                obs = BiasObserver.from_dict(e.get("observer"))  # type: ignore[arg-type]
-            except StateError as exc:
-                raise StateError(f"{where}.observer: {exc}") from exc
-            if obs.config.n != 3 or not obs.started:
-                raise StateError(f"{where}.observer must be a started observer with n = 3")
-            checked.setdefault(sysid, []).append(e)
-        for sysid, es in checked.items():
+        the bad entry (:func:`check_saved`); nothing is taken then."""
+        for sysid, es in check_saved(entries).items():
             self._pending.setdefault(sysid, []).extend(es)
 
     def _resume_saved(self, veh: _Vehicle, entries: list[dict[str, Any]]) -> None:
         """Carry saved observers to the vehicle's current position (see :meth:`restore`)."""
-        tb, pos, vel = veh.position  # type: ignore[misc]
-        for e in entries:
-            obs = BiasObserver.from_dict(e["observer"])
-            saved = e["vehicle"]
-            t_c = obs.committed_t_s
-            gap = tb - t_c  # type: ignore[operator]
-            if gap < 0.0 or gap > self.config.restore_max_gap_s:
-                why = "autopilot clock went back" if gap < 0.0 else f"{gap:.0f} s old"
-                log.warning(
-                    "vehicle %d: saved observer %r discarded (%s)", veh.sysid, e["target"], why
+        fix = VehicleFix(*veh.position)  # type: ignore[misc]
+        for r in veh.targets.resume(entries, fix, self.config.restore_max_gap_s):
+            who = (veh.sysid, r.target)
+            if r.restored:
+                self._note(veh, "restored")
+                obs = veh.targets.get(r.target)
+                log.info(
+                    "vehicle %d: restored observer %r (%s), %.1f s of vehicle time after it "
+                    "was saved, vehicle moved %.1f m since",
+                    veh.sysid,
+                    r.target,
+                    "?" if obs is None else str(obs.status),
+                    r.gap_s,
+                    r.moved_m,
                 )
+            elif r.outcome == "superseded":
+                log.info("vehicle %d: saved observer %r: a live one has its place", *who)
+            else:
+                why = "clock went back" if r.outcome == "clock_back" else f"{r.gap_s:.0f} s old"
+                log.warning("vehicle %d: saved observer %r discarded (%s)", *who, why)
                 self._note(veh, "restore_discarded")
-                continue
-            if e["target"] in veh.observers:
-                continue  # a live observer already took its place
-            # the vehicle's position at the committed time, from the saved one: it moves at its
-            # measured velocity less its error, u - ahat (x' = v + a = -(u - a), target static)
-            dt = t_c - saved["t_boot_s"]  # type: ignore[operator]
-            a = obs.a_mps
-            p_c = [saved["pos_ned_m"][j] + dt * (saved["vel_ned_mps"][j] - a[j]) for j in range(3)]
-            dx = [p_c[j] - pos[j] for j in range(3)]  # x = target - vehicle: minus its move
-            obs.resume(tb, dx, [-vel[0], -vel[1], -vel[2]])
-            veh.observers[e["target"]] = (obs, e["source"])
-            self._note(veh, "restored")
-            log.info(
-                "vehicle %d: restored observer %r (%s), %.1f s of vehicle time after it was "
-                "saved, vehicle moved %.1f m since",
-                veh.sysid,
-                e["target"],
-                str(obs.status),
-                gap,
-                math.sqrt(sum(c * c for c in dx)),
-            )
 
     # -- read-out ---------------------------------------------------------------------
     def targets(self) -> dict[tuple[int, str], str]:
@@ -1034,7 +876,7 @@ class Tracker:
         return {
             (s, name): src
             for s, veh in self.vehicles.items()
-            for name, (_, src) in veh.observers.items()
+            for name, src in veh.targets.sources().items()
         }
 
     def is_vehicle(self, sysid: int) -> bool:
@@ -1049,6 +891,6 @@ class Tracker:
         return {} if veh is None else dict(veh.skipped)
 
     def observer(self, sysid: int, target: str) -> BiasObserver | None:
+        """The observer of ``target`` on vehicle ``sysid``, ``None`` if there is none."""
         veh = self.vehicles.get(sysid)
-        entry = None if veh is None else veh.observers.get(target)
-        return None if entry is None else entry[0]
+        return None if veh is None else veh.targets.get(target)
