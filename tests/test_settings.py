@@ -114,6 +114,26 @@ def test_the_observer_settings_are_the_dataclass_fields_with_its_defaults() -> N
     assert st.resolve().observer_config() == ObserverConfig()
 
 
+def test_the_tracker_settings_are_the_dataclass_fields_with_its_defaults() -> None:
+    from dataclasses import fields
+
+    from mav_observer.mavlink.tracker import TrackerConfig
+
+    d = st.defaults()["tracker"]
+    ours = {f.name: f.default for f in fields(TrackerConfig)}
+    # the observer's have their own table, the restore gap is [state] max_gap_s
+    assert set(d) == set(ours) - {"observer", "restore_max_gap_s"}
+    assert all(d[k] == (list(v) if isinstance(v, tuple) else v) for k, v in ours.items() if k in d
+               and k != "sysids")  # fmt: skip
+    assert d["sysids"] == [] and ours["sysids"] is None  # none listed: every vehicle
+    assert st.resolve().tracker_config() == TrackerConfig(
+        restore_max_gap_s=st.defaults()["state"]["max_gap_s"]
+    )
+    changed = st.resolve(None, {"tracker": {"attitude_wait_s": 0.1, "sources": ["gimbal"]}})
+    assert changed.tracker_config().attitude_wait_s == 0.1
+    assert changed.tracker_config().sources == ("gimbal",)
+
+
 def test_printed_settings_leave_the_other_estimators_keys_as_comments(tmp_path: Path) -> None:
     for est, hidden, shown in (
         ("riccati", "k_per_s", "bearing_noise_deg"),
