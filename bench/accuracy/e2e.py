@@ -185,7 +185,13 @@ CASES: dict[str, E2ECase] = {
                 "velocity_gm_tau_s": 60.0,
                 "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
             },
-            settings={"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.1},
+            # told as a user would: the white part, and the Gauss-Markov part as the bias's
+            # random walk of the same short-term spread, 0.1 * sqrt(2 / 60 s)
+            settings={
+                "bearing_noise_deg": 0.5,
+                "velocity_noise_mps": 0.05,
+                "bias_walk_mps_per_sqrt_s": 0.018,
+            },
         ),
         E2ECase(
             "plain_fig8",
