@@ -55,7 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
         "records; prints a summary. Exit status 3 when the source has no usable velocity or "
         "bearing stream.",
     )
-    rp.add_argument("source", help="a .tlog file, or udpin:127.0.0.1:14550, tcp:..., DEVICE,BAUD")
+    rp.add_argument(
+        "source",
+        nargs="?",
+        help="a .tlog file, or udpin:127.0.0.1:14550, tcp:..., DEVICE,BAUD (default: the "
+        "settings' [mavlink] url)",
+    )
     rp.add_argument("--output", "-o", type=Path, help="estimate records, JSON Lines")
     rp.add_argument("--csv", type=Path, help="estimate records, CSV")
     rp.add_argument("--plot", type=Path, help="report figure (PNG; needs matplotlib)")
@@ -321,11 +326,27 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from mav_observer import reference
     from mav_observer import replay as rp
     from mav_observer import settings as st
+    from mav_observer.mavlink import signing
     from mav_observer.report import plot_replay
 
-    cfg = st.resolve(args.config, estimation_overrides(args), SETTING_FLAGS).tracker_config()
+    settings = st.resolve(args.config, estimation_overrides(args), SETTING_FLAGS)
+    cfg = settings.tracker_config()
+    m = settings.values["mavlink"]
+    if args.source is None and args.config is None:
+        raise ConfigError(
+            "replay needs a SOURCE (a .tlog file or a connection string), or --config FILE "
+            "whose [mavlink] url it reads"
+        )
+    source = args.source if args.source is not None else m["url"]
+    key_file = m["signing_key_file"]
+    link = rp.LinkOptions(
+        heartbeat_period_s=m["heartbeat_period_s"],
+        signing_key=None if key_file is None else signing.load_key(key_file),
+        signing_link_id=m["signing_link_id"],
+    )
     summary = rp.replay(
-        args.source,
+        source,
+        link=link,
         tracker_config=cfg,
         output_jsonl=args.output,
         output_csv=args.csv,
@@ -341,7 +362,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         plot_replay(
             summary.series,
             args.plot,
-            title=Path(args.source).name,
+            title=Path(source).name,
             errors=errors,
             excitation_min=cfg.observer.excitation_min,
             events=summary.event_log,

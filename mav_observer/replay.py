@@ -241,15 +241,32 @@ class ReplaySummary:
         return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class LinkOptions:
+    """How a live source is read (the ``[mavlink]`` settings of the service): send a
+    HEARTBEAT every ``heartbeat_period_s`` (``"auto"``: only on ``udpout:``; ``None``: never),
+    and with a 32-byte ``signing_key`` refuse unsigned or wrongly signed frames."""
+
+    heartbeat_period_s: float | str | None = "auto"
+    signing_key: bytes | None = None
+    signing_link_id: int = 0
+
+
 def _messages(
-    source: str, tracker: Tracker, duration_s: float | None
+    source: str, tracker: Tracker, duration_s: float | None, link: LinkOptions
 ) -> tuple[Iterator[tuple[float, Any]], Any]:
     if is_file_source(source):
         reader: Any = TlogReader(source, tracker.config.wanted_message_ids())
         return iter(reader), reader
     if Path(source).suffix in (".tlog", ".rlog") and not Path(source).exists():
         raise ReplayError(f"no such file: {source}")
-    reader = ConnectionReader(source, duration_s=duration_s)
+    reader = ConnectionReader(
+        source,
+        duration_s=duration_s,
+        heartbeat_period_s=link.heartbeat_period_s,
+        signing_key=link.signing_key,
+        signing_link_id=link.signing_link_id,
+    )
     return iter(reader), reader
 
 
@@ -272,16 +289,18 @@ def replay(
     keep_series: bool = False,
     duration_s: float | None = None,
     progress: bool = False,
+    link: LinkOptions | None = None,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
-    the source has no usable velocity or bearing stream."""
+    the source has no usable velocity or bearing stream. ``link``: how a live source is read
+    (a file ignores it)."""
     tracker = Tracker(tracker_config)
     exc_min = tracker.config.observer.excitation_min
     summary = ReplaySummary(source=source)
     if is_file_source(source):
         summary.bytes_total = Path(source).stat().st_size
     t0 = time.perf_counter()
-    messages, reader = _messages(source, tracker, duration_s)
+    messages, reader = _messages(source, tracker, duration_s, link or LinkOptions())
     bar = _progress(progress and isinstance(reader, TlogReader), summary.bytes_total or None)
     try:
         with ExitStack() as stack:

@@ -3,8 +3,11 @@ command line and its files."""
 
 import csv
 import json
+import socket
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +21,7 @@ from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
 from sim import fuzz, scenarios
 from sim.emitter import BEARINGS, TARGET_OF, Emitter, EmitterConfig, run
+from sim.live import free_port
 
 
 @pytest.fixture(scope="module")
@@ -306,3 +310,45 @@ def test_a_flag_for_the_other_estimator_is_a_clear_error(emitted, tmp_path: Path
     f.write_text("[observer]\nbearing_noise = 1.0\n")
     assert main(["replay", str(tl), "-q", "--config", str(f)]) == 2
     assert "unknown setting observer.bearing_noise" in capsys.readouterr().err
+
+
+def _send_live(port: int) -> threading.Thread:
+    """The emitter flying the orbit for 40 s of scenario time, 20 times faster, to a udpin
+    port on 127.0.0.1, starting 0.5 s from now (the replay's link opens first)."""
+    em = Emitter(scenarios.orbit(), EmitterConfig(bearing="gimbal", duration_s=40.0, seed=2))
+
+    def go() -> None:
+        time.sleep(0.5)
+        run(em, to=f"udpout:127.0.0.1:{port}", speed=20.0)
+
+    th = threading.Thread(target=go, daemon=True)
+    th.start()
+    return th
+
+
+def test_replay_without_a_source_reads_the_settings_mavlink_link(tmp_path: Path, capsys) -> None:
+    # no SOURCE: the [mavlink] url of the settings file, read live; its signing key applies
+    port = free_port(socket.SOCK_DGRAM)
+    f = tmp_path / "svc.toml"
+    f.write_text(f'[mavlink]\nurl = "udpin:127.0.0.1:{port}"\n')
+    out = tmp_path / "live.json"
+    th = _send_live(port)
+    assert main(["replay", "--config", str(f), "--duration", "3", "-q", "--summary-json",
+                 str(out)]) == 0  # fmt: skip
+    th.join(10.0)
+    doc = json.loads(out.read_text())
+    assert doc["source"] == f"udpin:127.0.0.1:{port}"
+    assert doc["targets"]["1/gimbal"]["estimates"] > 100
+    # with a signing key, the unsigned stream is refused and counted: nothing usable
+    key = tmp_path / "key"
+    key.write_text("a passphrase only we know")
+    key.chmod(0o600)
+    port = free_port(socket.SOCK_DGRAM)
+    f.write_text(f'[mavlink]\nurl = "udpin:127.0.0.1:{port}"\nsigning_key_file = "{key}"\n')
+    th = _send_live(port)
+    assert main(["replay", "--config", str(f), "--duration", "3", "-q"]) == 3
+    th.join(10.0)
+    assert "unsigned" in capsys.readouterr().err
+    # neither a SOURCE nor a settings file: a usage error, not a silent listen
+    assert main(["replay", "-q"]) == 2
+    assert "replay needs a SOURCE" in capsys.readouterr().err
