@@ -622,3 +622,17 @@ def test_an_interval_mean_velocity_makes_the_prediction_exact(estimator: str) ->
     np.testing.assert_allclose(
         plain.predict(1.0).x_m - x0, np.array([0.5, 0.5, 0.0]) + a0, atol=1e-9
     )
+    # past the latest sample of such a sparse stream, the prediction continues the latest
+    # interval's trend (the model at the sample, [0.2, 0.9, 0.1], and its slope, [-1, 1, 0]
+    # per s) for at most one interval, then holds it; without the mean, the velocity at the
+    # span's middle (0.75 s: [0.25, 0.75, 0]) is used for the whole span
+    m = np.array([0.7, 0.4, 0.1])
+    np.testing.assert_allclose(
+        obs.predict(1.5).x_m - x0, m + np.array([-0.025, 0.575, 0.05]) + 1.5 * a0, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        obs.predict(2.5).x_m - x0, m + np.array([-0.7, 2.35, 0.15]) + 2.5 * a0, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        plain.predict(1.5).x_m - x0, np.array([0.375, 1.125, 0.0]) + 1.5 * a0, atol=1e-9
+    )
