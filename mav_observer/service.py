@@ -163,12 +163,17 @@ class Service:
             self.shutdown()
 
     def shutdown(self) -> None:
-        """Publish a last status for every vehicle, save the state, close the link and the
-        publications (the liveliness tokens go). Idempotent."""
+        """Give the bearings still waiting for their attitude to their observers (as replay
+        does at the end of a log), publish a last status for every vehicle, save the state,
+        close the link and the publications (the liveliness tokens go). Idempotent."""
         if self._shut:
             return
         self._shut = True
         now = self.monotonic()
+        for rec in self.tracker.flush():
+            view = self.vehicles.get(rec.sysid)
+            if view is not None:
+                self._on_estimate(view, rec, now)
         for view in self.vehicles.values():
             self._publish_status(view, now, final=True)
         self.save_state()

@@ -183,6 +183,24 @@ def test_a_target_whose_bearings_stop_is_stale_while_the_vehicle_talks() -> None
     assert last["observers"]["gimbal"]["status"] == "stale"
 
 
+def test_bearings_waiting_for_their_attitude_at_shutdown_are_not_lost() -> None:
+    # the last 0.4 s of vehicle attitude never arrives: the bearings of that time wait for it; the
+    # shutdown gives them to the observer (extrapolated attitude), as replay's end does
+    from mav_observer.mavlink.tracker import Tracker
+
+    items, em = messages(20.0)
+    t_cut = items[-1][0] - 0.4
+    att = ("ATTITUDE", "ATTITUDE_QUATERNION")
+    items = [(t, m) for t, m in items if not (t > t_cut and m.get_type() in att)]
+    svc, _, _ = make_service(items, em)
+    svc.run(duration_s=21.0)
+    tr = Tracker(st.resolve(None, {}).tracker_config())
+    handled = sum(len(tr.handle(t, m)) for t, m in items)
+    flushed = len(tr.flush())
+    assert flushed >= 2  # bearings were waiting at the end
+    assert svc.vehicles[1].targets["gimbal"].estimates == handled + flushed
+
+
 def test_ground_station_heartbeats_make_no_vehicle() -> None:
     mav = codec(255, 190)
     from mav_observer.mavlink.dialect import mavlink
