@@ -185,7 +185,7 @@ def _markdown(
         "to the best achievable accuracy, the Cramér-Rao lower bound (CRLB), and how reliably "
         "it converges. The first sections measure the product the way a user runs it: MAVLink "
         "frames through `mav-observer replay`, on emitter streams with realistic timing and on "
-        "real flight logs with injected bearings. The Monte Carlo sections after them (\"What "
+        'real flight logs with injected bearings. The Monte Carlo sections after them ("What '
         "is measured\" onwards) feed the estimators' maths directly and tell them the true "
         "noise: they show what the maths can do, not what a user gets.",
         "",
@@ -257,7 +257,7 @@ def _markdown(
         "## Headline",
         "",
         "The maths fed directly, the noise told (not the product's path: see \"End to end, "
-        "through replay\" above). Paper and orbit scenarios, 0.5 and 2 deg bearing noise, "
+        'through replay" above). Paper and orbit scenarios, 0.5 and 2 deg bearing noise, '
         "exact velocity, range guess = true range.",
         "",
         report.headline_tables(grid),
