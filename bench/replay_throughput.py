@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -35,19 +34,9 @@ sys.path.insert(0, str(ROOT))
 from mav_observer.mavlink.dialect import connect  # noqa: E402
 from mav_observer.mavlink.tracker import TrackerConfig  # noqa: E402
 from mav_observer.replay import ReplayError, replay  # noqa: E402
+from sim.tlogs import find_tlogs  # noqa: E402
 
-TLOGS = next(
-    (
-        Path(p)
-        for p in (
-            os.environ.get("MAV_OBSERVER_TLOGS"),
-            ROOT.parent / "shared" / "tlogs",
-            "/work/shared/tlogs",
-        )
-        if p and Path(p).is_dir()
-    ),
-    ROOT.parent / "shared" / "tlogs",
-)
+TLOGS = find_tlogs()
 CACHE = ROOT / "bench" / ".cache"
 LONG = CACHE / "long_orbit_1h.tlog"
 

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from mav_observer.mavlink.dialect import codec, mavlink
+from sim.tlogs import find_tlogs
 
 T0_UNIX = 1_767_225_600.0
 
@@ -39,27 +40,6 @@ def tlog(path: Path, records: list[tuple[float, bytes]]) -> Path:
         for t, fr in records:
             fh.write(struct.pack(">Q", round(t * 1e6)) + fr)
     return path
-
-
-def find_tlogs() -> Path:
-    """The shared real logs (``../shared/tlogs`` beside the checkout, as the project keeps
-    them; ``$MAV_OBSERVER_TLOGS`` or the workplace's ``/work/shared/tlogs`` for a checkout
-    elsewhere). Missing logs fail the tests that need them, loudly: never a silent skip."""
-    import os
-
-    here = Path(__file__).resolve().parents[1]
-    candidates = [
-        os.environ.get("MAV_OBSERVER_TLOGS"),
-        here.parent / "shared" / "tlogs",
-        Path("/work/shared/tlogs"),
-    ]
-    for c in candidates:
-        if c and (Path(c) / "ardupilot_sitl_servo_mount_roi.tlog").is_file():
-            return Path(c)
-    raise FileNotFoundError(
-        "the shared real logs (ardupilot_sitl_servo_mount_roi.tlog and others) are not in "
-        f"any of {[str(c) for c in candidates if c]}; set MAV_OBSERVER_TLOGS"
-    )
 
 
 TLOGS = find_tlogs()

@@ -39,15 +39,15 @@ from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
 from mav_observer.replay import ReplayError, replay
 from sim import inject as inj
+from sim.tlogs import find_tlogs
 
 ROOT = Path(__file__).resolve().parents[2]
-TLOGS = ROOT.parent / "shared" / "tlogs"
 
 
 def shared_logs() -> list[Path]:
     """Every shared log with LOCAL_POSITION_NED (the others cannot carry an injection)."""
     out = []
-    for p in sorted(TLOGS.glob("*.tlog")):
+    for p in sorted(find_tlogs().glob("*.tlog")):
         recs = inj.split_records(p.read_bytes())
         if inj.vehicles_with_local_position(recs):
             out.append(p)
