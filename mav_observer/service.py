@@ -248,8 +248,13 @@ class Service:
 
     # -- housekeeping -------------------------------------------------------------------
     def housekeeping(self, now: float) -> None:
-        """Stale detection, the periodic status, the periodic save."""
+        """Bearings that waited long enough for their attitude, stale detection, the periodic
+        status, the periodic save."""
         self._next_tick = now + self.tick_s
+        for rec in self.tracker.release_due(self.clock()):
+            view = self.vehicles.get(rec.sysid)
+            if view is not None:
+                self._on_estimate(view, rec, now)
         if (
             self._link_state == UP
             and self._last_any_mono is not None

@@ -489,3 +489,51 @@ def test_a_position_jump_keeps_the_velocity_and_is_counted() -> None:
         jump = 30.0 if k >= 6 else 0.0  # an EKF position reset
         tr.handle(T0_UNIX + k, lpn(100_000 + 1000 * k, (1.0 * k + jump, 0.0, -10.0)))
     assert tr.events["position_reset"] == 1
+
+
+def _slow_attitude_flight(n: int = 60, attitude_until_ms: int | None = None) -> list:
+    """ATTITUDE at 20 Hz with its yaw rate (30 deg/s), the gimbal 40 ms after each, arriving
+    before the next ATTITUDE; LOCAL_POSITION_NED at 10 Hz."""
+    msgs = []
+    for i in range(n):
+        ms = 100_000 + 50 * i
+        y, r = steady_yaw((ms - 100_000) / 1000.0)
+        if attitude_until_ms is None or ms <= attitude_until_ms:
+            msgs.append(message("ATTITUDE", ms, 0.0, 0.0, math.remainder(y, 2 * math.pi),
+                                0.0, 0.0, r))  # fmt: skip
+        if i % 2 == 0:
+            msgs.append(lpn(ms, (0.001 * (ms - 100_000), 0.0, -10.0)))
+        tb = ms + 40
+        yaw_rel = -steady_yaw((tb - 100_000) / 1000.0)[0]
+        q = quat_about_z_then_pitch(math.radians(45.0) + yaw_rel, math.radians(-30.0))
+        msgs.append(gimbal(tb, q=q, compid=154))
+    return msgs
+
+
+def test_one_interval_past_an_attitude_with_its_rates_is_extrapolated_at_once() -> None:
+    # a 20 Hz ATTITUDE reporting its rates: a bearing 40 ms after one is used when it arrives
+    # (no latency added live), the attitude extrapolated with the rate: exact for a steady yaw
+    tr, recs, err = run_in_order(_slow_attitude_flight())
+    assert len(recs) == len(err) == 60 and max(err) < 1e-4
+    tr = Tracker(TrackerConfig(observer=ObserverConfig(initial_range_m=20.0)))
+    at_once = 0
+    for m in _slow_attitude_flight():
+        out = tr.handle(T0_UNIX + m.time_boot_ms / 1000.0, m)
+        at_once += m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS" and len(out) == 1
+    # all but the first, which waits: the stream's interval is not known yet
+    assert at_once == 59 and not any(v.waiting for v in tr.vehicles.values())
+
+
+def test_bearings_waiting_when_the_stream_pauses_are_released_by_time() -> None:
+    # the ATTITUDE stops and then everything does: the bearings past it wait; the clock
+    # alone (the service's housekeeping) releases them once they have waited long enough
+    tr = Tracker(TrackerConfig(observer=ObserverConfig(initial_range_m=20.0)))
+    msgs = _slow_attitude_flight(attitude_until_ms=102_800)  # 0.15 s before the end
+    recs = [r for m in msgs for r in tr.handle(T0_UNIX + m.time_boot_ms / 1000.0, m)]
+    waiting = sum(len(v.waiting) for v in tr.vehicles.values())
+    assert waiting == 3  # 90, 140 and 190 ms past the last ATTITUDE
+    last = T0_UNIX + msgs[-1].time_boot_ms / 1000.0
+    assert tr.release_due(last + 0.05) == []  # not waited long enough yet
+    released = tr.release_due(last + 1.0)
+    assert len(released) == waiting and len(recs) + waiting == 60
+    assert tr.events["attitude_extrapolated"] == 3
