@@ -21,9 +21,6 @@ class AttitudeHistory:
         self._rates: tuple[float, float, float] | None = None
         #: the stream's typical interval (s), a running mean of the intervals up to 2 s
         self.interval_s = 0.0
-        #: True when the latest attitude came with the body rates the message reports (not
-        #: rates from the difference of two attitudes)
-        self.rates_reported = False
 
     @property
     def has_rates(self) -> bool:
@@ -55,10 +52,8 @@ class AttitudeHistory:
             dt = t - h[-1][0]
             self.interval_s = dt if self.interval_s == 0.0 else 0.9 * self.interval_s + 0.1 * dt
         rates = None
-        self.rates_reported = False
         if body_rates is not None and all(map(math.isfinite, body_rates)) and any(body_rates):
             rates = euler_rates(roll, pitch, body_rates)
-            self.rates_reported = True
         elif h and 0.0 < t - h[-1][0] <= 2.0:
             a = h[-1]
             dt = t - a[0]

@@ -63,9 +63,6 @@ POSITION_MAX_AGE_S = 1.0
 #: its origin (m).
 MAX_SPEED_MPS = 300.0
 MAX_LOCAL_POSITION_M = 1.0e6
-#: A bearing at most one attitude interval, and at most this (s), past an attitude with
-#: reported body rates is extrapolated at once rather than waiting for the next one.
-MAX_EXTRAPOLATE_S = 0.1
 #: Bearings waiting for the vehicle attitude of their own time, per vehicle, at the most.
 MAX_WAITING = 64
 #: A component whose clock offset (arrival - time_boot_ms) is within this of the autopilot's
@@ -103,9 +100,7 @@ class TrackerConfig:
     * ``attitude_extrapolate_s``: a bearing at most this far (s) past the latest attitude of
       a dense attitude stream (50 ms or less between samples) does not wait: the attitude is
       extrapolated by its rates at once (no latency added live; at 1 rad/s^2 of yaw
-      acceleration 25 ms of extrapolation is 0.02 deg off). So is one at most one interval
-      (and :data:`MAX_EXTRAPOLATE_S`) past an attitude that reports its body rates. 0:
-      always wait.
+      acceleration 25 ms of extrapolation is 0.02 deg off). 0: always wait.
     * ``sysids``: only these vehicles (``None``: all).
     * ``restore_max_gap_s``: a saved observer older than this (vehicle time) is not restored
       (:meth:`Tracker.restore`).
@@ -389,13 +384,6 @@ class Tracker:
         if self.config.attitude_wait_s <= 0.0 or latest is None or latest >= tb:
             return False
         ahead = tb - latest
-        at_once = self.config.attitude_extrapolate_s > 0.0  # 0: always wait
-        if at_once and h.rates_reported and ahead <= min(MAX_EXTRAPOLATE_S, 1.05 * h.interval_s):
-            # within one interval of an attitude with its reported body rates: extrapolated
-            # at once, no latency added live (at 1 rad/s^2 of angular acceleration, 50 ms of
-            # extrapolation is 0.07 deg off; waiting for the next ATTITUDE cost 13 ms of
-            # median latency with a 20 Hz ATTITUDE and 30 Hz bearings)
-            return False
         dense = 0.0 < h.interval_s <= 0.05 and h.has_rates
         return not (dense and ahead <= self.config.attitude_extrapolate_s)
 
