@@ -159,7 +159,9 @@ def one_k(k: float, stream: Stream, args: argparse.Namespace) -> dict[str, Any]:
     send_wall = t_end - wall0
     docs = [json.loads(s) for s in statuses]
     messages = max((d.get("messages", 0) for d in docs), default=0)
-    last_doc = max(docs, key=lambda d: d.get("messages", 0), default={})
+    # the latest of the statuses that counted every message (a bearing that waited for its
+    # attitude is counted a little after the last message)
+    last_doc = max(docs, key=lambda d: (d.get("messages", 0), d.get("t_unix_s", 0.0)), default={})
     obs = last_doc.get("observers", {}).get("gimbal", {})
     n_bearings = sum(1 for _, _, key, _ in plan if key is not None)
     delays: list[tuple[float, float]] = []  # (send time, delay)
