@@ -149,12 +149,32 @@ def _add_listen_parser(sub: Any) -> None:
     ls.add_argument("--duration", type=float, help="stop after this many seconds")
 
 
+def _number_or_auto(text: str) -> float | str:
+    """``auto`` or a number, for the noise flags."""
+    if text == "auto":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected "auto" or a number, got {text!r}') from None
+
+
 #: The observer flags of run and replay: ``(flag, settings key, type, help)``. A flag for
 #: the estimator not chosen is an error (:func:`mav_observer.settings.check_estimator_keys`).
 OBSERVER_FLAGS = (
     ("--estimator", "estimator", str, "riccati (default) or paper"),
-    ("--bearing-noise-deg", "bearing_noise_deg", float, "bearing noise, 1 sigma (deg; riccati)"),
-    ("--velocity-noise-mps", "velocity_noise_mps", float, "velocity noise (m/s; riccati)"),
+    (
+        "--bearing-noise-deg",
+        "bearing_noise_deg",
+        _number_or_auto,
+        "bearing noise, 1 sigma (deg), or auto: learnt online (default; riccati)",
+    ),
+    (
+        "--velocity-noise-mps",
+        "velocity_noise_mps",
+        _number_or_auto,
+        "white velocity noise (m/s), or auto: learnt online (default; riccati)",
+    ),
     ("--bias-walk", "bias_walk_mps_per_sqrt_s", float, "bias random walk (m/s/sqrt s; riccati)"),
     ("--initial-range-m", "initial_range_m", float, "first range guess (m)"),
     ("--k", "k_per_s", float, "gain k (1/s; paper)"),

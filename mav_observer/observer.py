@@ -57,10 +57,12 @@ import numpy as np
 from mav_observer import discrete, riccati
 from mav_observer.errors import ConfigError, InvalidSampleError, StateError
 from mav_observer.monitor import ExcitationWindow, MonitorThresholds, StatusMemory, next_status
+from mav_observer.noise import NoiseStateError, VelocityNoise
 from mav_observer.samples import (
     MIN_DIM,
     BearingSample,
     Estimate,
+    NoiseLevels,
     Status,
     VelocitySample,
     _check_time,
@@ -92,6 +94,27 @@ INTERPOLATIONS = ("linear", "hold")
 CHORD_NOISE_MPS = 0.01
 #: Version of the dictionary written by :meth:`BiasObserver.to_dict`.
 STATE_SCHEMA = 2
+
+
+#: ``bearing_noise_deg = "auto"``: learn the noise online (the default).
+AUTO = "auto"
+#: The prior of a learnt bearing noise (deg, 1 sigma per direction).
+BEARING_NOISE_PRIOR_DEG = 0.5
+#: The prior of a learnt velocity noise (m/s per axis; :mod:`mav_observer.noise`).
+VELOCITY_NOISE_PRIOR_MPS = 0.05
+#: The Huber threshold of a bearing: the 99.9 % quantile of the NIS (chi-square with
+#: ``n - 1`` degrees of freedom), by dimension of the tangent space.
+_CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}
+
+
+def outlier_nis(dof: int) -> float:
+    """The NIS above which a bearing is down-weighted: the 99.9 % chi-square quantile with
+    ``dof`` degrees of freedom (Wilson-Hilferty beyond 4)."""
+    if dof in _CHI2_999:
+        return _CHI2_999[dof]
+    z = 3.090232  # the 99.9 % normal quantile
+    c = 2.0 / (9.0 * dof)
+    return dof * (1.0 - c + z * math.sqrt(c)) ** 3
 
 
 def _positive(name: str, value: object, *, allow_zero: bool = False) -> float:
@@ -143,9 +166,10 @@ class ObserverConfig:
     n: int = 3
     estimator: str = "riccati"
     mode: str = "biased"
-    bearing_noise_deg: float = 0.5
-    velocity_noise_mps: float = 0.05
+    bearing_noise_deg: float | str = "auto"
+    velocity_noise_mps: float | str = "auto"
     bias_walk_mps_per_sqrt_s: float = 0.0
+    robust: bool = True
     hypotheses: int = 7
     range_span: float = 16.0
     k_per_s: float = 0.2
@@ -171,10 +195,15 @@ class ObserverConfig:
             raise ConfigError(f"n must be an integer >= {MIN_DIM}, got {self.n!r}")
         if self.estimator not in ESTIMATORS:
             raise ConfigError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
-        object.__setattr__(
-            self, "bearing_noise_deg", _positive("bearing_noise_deg", self.bearing_noise_deg)
-        )
+        if self.bearing_noise_deg != AUTO:
+            object.__setattr__(
+                self, "bearing_noise_deg", _positive("bearing_noise_deg", self.bearing_noise_deg)
+            )
+        if not isinstance(self.robust, bool):
+            raise ConfigError(f"robust must be true or false, got {self.robust!r}")
         for name in ("velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
+            if name == "velocity_noise_mps" and self.velocity_noise_mps == AUTO:
+                continue
             object.__setattr__(self, name, _positive(name, getattr(self, name), allow_zero=True))
         h = self.hypotheses
         if isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= 31:
@@ -261,12 +290,26 @@ class ObserverConfig:
             }
         )
 
-    def bank_params(self, velocity_dt_s: float) -> riccati.BankParams:
+    def bank_params(
+        self, velocity_dt_s: float, velocity_noise_mps: float | None = None
+    ) -> riccati.BankParams:
         """The riccati estimator's settings; ``velocity_dt_s`` is the velocity's sample
-        interval (s), which turns its noise into a process noise on ``x``."""
+        interval (s), which turns its noise into a process noise on ``x``;
+        ``velocity_noise_mps`` the velocity noise in use (when learnt; default: the
+        setting, or its prior for ``"auto"``)."""
+        if velocity_noise_mps is None:
+            velocity_noise_mps = (
+                VELOCITY_NOISE_PRIOR_MPS
+                if self.velocity_noise_mps == AUTO
+                else float(self.velocity_noise_mps)
+            )
+        learn = self.bearing_noise_deg == AUTO
+        prior_deg = BEARING_NOISE_PRIOR_DEG if learn else float(self.bearing_noise_deg)
         return riccati.BankParams(
-            sigma_rad=math.radians(self.bearing_noise_deg),
-            q_x=self.velocity_noise_mps**2 * velocity_dt_s,
+            sigma_rad=math.radians(prior_deg),
+            learn_noise=learn,
+            outlier_nis=outlier_nis(self.n - 1) if self.robust else math.inf,
+            q_x=velocity_noise_mps**2 * velocity_dt_s,
             q_a=self.bias_walk_mps_per_sqrt_s**2,
             hypotheses=self.hypotheses,
             span=self.range_span,
@@ -400,6 +443,12 @@ class BiasObserver:
         #: (see :meth:`update_velocity_values`)
         self._vel_mean: dict[float, list[float]] = {}
         self._counts = {"velocity": 0, "bearing": 0}
+        #: the velocity's white noise, learnt from its samples (``velocity_noise_mps = "auto"``)
+        self._vnoise = (
+            VelocityNoise(prior_mps=VELOCITY_NOISE_PRIOR_MPS)
+            if cfg.velocity_noise_mps == AUTO
+            else None
+        )
 
     # -- public properties ----------------------------------------------------------
     @property
@@ -441,6 +490,39 @@ class BiasObserver:
     def counts(self) -> dict[str, int]:
         """Samples accepted per stream."""
         return dict(self._counts)
+
+    def noise(self) -> NoiseLevels | None:
+        """The noise levels in use (learnt or told) and the robust update's counts, for the
+        riccati estimator; ``None`` for the paper's observer."""
+        if not self._kalman:
+            return None
+        cfg = self.config
+        prm = self._bank_params()
+        bank = self._bank
+        if bank is None:
+            var, bearings, outliers, reseeds = prm.sigma_rad**2, 0, 0, 0
+        else:
+            var = float(bank.noise_var_rad2(prm)[0])
+            bearings, outliers = int(bank.bearings[0]), int(bank.outliers[0])
+            reseeds = int(bank.reseeds[0])
+        return NoiseLevels(
+            bearing_noise_deg=math.degrees(math.sqrt(var)),
+            bearing_noise_learnt=prm.learn_noise,
+            velocity_noise_mps=self._velocity_noise_mps(),
+            velocity_noise_learnt=cfg.velocity_noise_mps == AUTO,
+            bearings=bearings,
+            outliers=outliers,
+            reacquisitions=reseeds,
+        )
+
+    def _velocity_noise_mps(self) -> float:
+        """The white velocity noise in use (m/s per axis): learnt or told."""
+        if self._vnoise is not None:
+            return self._vnoise.sigma_mps
+        return float(self.config.velocity_noise_mps)
+
+    def _bank_params(self) -> riccati.BankParams:
+        return self.config.bank_params(self._vel_dt, self._velocity_noise_mps())
 
     def _paper_only(self, name: str) -> None:
         if self._kalman:
@@ -497,6 +579,8 @@ class BiasObserver:
             buf.pop()
             raise
         self._counts[kind] += 1
+        if kind == "velocity" and self._vnoise is not None:
+            self._vnoise.update(t_s, vec)
 
     def update_velocity(self, sample: VelocitySample) -> None:
         """Accept a velocity sample (the paper's ``v``; for a vehicle minus its velocity)."""
@@ -576,9 +660,7 @@ class BiasObserver:
         cfg = self.config
         if self._kalman:
             y0 = np.array([self._bearings[-1][1]])
-            self._bank = riccati.bank_start(
-                y0, np.array([cfg.range_guess_m]), cfg.bank_params(self._vel_dt)
-            )
+            self._bank = riccati.bank_start(y0, np.array([cfg.range_guess_m]), self._bank_params())
             self._kf_out = None
             self._kf_tb = self._bearings[-1][0]
         elif cfg.initial_range_m is not None:
@@ -794,7 +876,7 @@ class BiasObserver:
         cfg = self.config
         n = cfg.n
         bank = riccati.copy_bank(self._bank)  # type: ignore[arg-type]
-        prm = cfg.bank_params(self._vel_dt)
+        prm = self._bank_params()
         # an interval whose displacement comes from the vehicle's positions has the
         # positions' small error, not the velocity's (see update_velocity_values)
         prm_chord = (
@@ -1013,7 +1095,7 @@ class BiasObserver:
                     pxx
                     + dt * (p_kf[:n, n:] + p_kf[n:, :n])
                     + dt * dt * p_kf[n:, n:]
-                    + (self.config.velocity_noise_mps**2 * self._vel_dt * dt) * np.eye(n)
+                    + (self._velocity_noise_mps() ** 2 * self._vel_dt * dt) * np.eye(n)
                 )
             x_std = np.sqrt(np.maximum(np.diag(pxx), 0.0))
             a_std = np.sqrt(np.maximum(np.diag(p_kf[n:, n:]), 0.0))
@@ -1109,6 +1191,7 @@ class BiasObserver:
             "counts": dict(self._counts),
             "estimate": None if self._estimate is None else self._estimate.to_dict(),
             "excitation_cache": None if self._diag is None else list(self._diag),
+            "velocity_noise": None if self._vnoise is None else self._vnoise.to_dict(),
             "kalman": None
             if self._bank is None
             else {
@@ -1174,6 +1257,12 @@ class BiasObserver:
                     f"observer state 'excitation_cache' is malformed: {diag!r}"
                 ) from exc
             obs._diag = (t_d, e_d)
+        vn = d.get("velocity_noise")
+        if vn is not None and obs._vnoise is not None:
+            try:
+                obs._vnoise.restore(vn)
+            except NoiseStateError as exc:
+                raise StateError(str(exc)) from exc
         kal = d.get("kalman")
         if kal is not None:
             obs._bank, obs._kf_tb, obs._vel_dt = _bank_from_dict(kal, n)
@@ -1186,16 +1275,28 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
     """The riccati estimator's saved bank, checked: shapes, finite values, owners."""
     try:
         raw = k["bank"]
-        arrays = {f.name: np.array(raw[f.name], dtype=float) for f in fields(riccati.Bank)}
+        # states saved before the noise was learnt lack its fields: the prior, nothing counted
+        added = {"noise_alpha", "noise_beta", "outliers", "bearings"}
+        arrays = {
+            f.name: np.array(raw[f.name], dtype=float)
+            for f in fields(riccati.Bank)
+            if f.name in raw or f.name not in added
+        }
         t_b = None if k["t_bearing"] is None else float(k["t_bearing"])
         vel_dt = float(k["velocity_dt"])
     except (KeyError, TypeError, ValueError) as exc:
         raise StateError(f"observer state 'kalman' is malformed: {exc!r}") from exc
+    if not added <= arrays.keys():
+        prior = math.radians(BEARING_NOISE_PRIOR_DEG) ** 2
+        arrays["noise_alpha"] = np.array([1.0])
+        arrays["noise_beta"] = np.array([prior])
+        arrays["outliers"] = arrays["bearings"] = np.array([0.0])
     f_count = arrays["x"].shape[0] if arrays["x"].ndim == 2 else -1
     shapes = {
         "x": (f_count, n), "a": (f_count, n), "p": (f_count, 2 * n, 2 * n),
         "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
         "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
+        "noise_alpha": (1,), "noise_beta": (1,), "outliers": (1,), "bearings": (1,),
     }  # fmt: skip
     for name, shape in shapes.items():
         arr = arrays[name]
@@ -1206,7 +1307,10 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
     if np.any(arrays["owner"] != 0) or not 0.0 < vel_dt <= 1.0:
         raise StateError("observer state 'kalman' has a foreign owner or a bad velocity_dt")
     arrays["owner"] = arrays["owner"].astype(int)
-    arrays["reseeds"] = arrays["reseeds"].astype(int)
+    for name in ("reseeds", "outliers", "bearings"):
+        arrays[name] = arrays[name].astype(int)
+    if arrays["noise_alpha"][0] <= 0.0 or arrays["noise_beta"][0] <= 0.0:
+        raise StateError("observer state 'kalman.bank.noise_alpha/noise_beta' must be > 0")
     return riccati.Bank(**arrays), t_b, vel_dt
 
 

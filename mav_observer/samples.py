@@ -217,3 +217,37 @@ class Estimate:
             "range_std_m": self.range_std_m,
             "nis": self.nis,
         }
+
+
+@dataclass(frozen=True, slots=True)
+class NoiseLevels:
+    """The noise an estimator works with, and what its robust update saw.
+
+    * ``bearing_noise_deg``: bearing noise per tangent direction in use (1 sigma, deg).
+    * ``bearing_noise_learnt``: true when learnt online (``bearing_noise_deg = "auto"``),
+      false when told.
+    * ``velocity_noise_mps``: white velocity noise per axis in use (1 sigma, m/s).
+    * ``velocity_noise_learnt``: likewise.
+    * ``bearings``: bearings applied; ``outliers``: of them, down-weighted as gross errors;
+      ``reacquisitions``: times the estimate was re-seeded after a persistent
+      inconsistency (the target moved, the tracker locked onto something else).
+    """
+
+    bearing_noise_deg: float
+    bearing_noise_learnt: bool
+    velocity_noise_mps: float
+    velocity_noise_learnt: bool
+    bearings: int
+    outliers: int
+    reacquisitions: int
+
+    def to_dict(self) -> dict[str, float | int | bool]:
+        return {
+            "bearing_noise_deg": self.bearing_noise_deg,
+            "bearing_noise_learnt": self.bearing_noise_learnt,
+            "velocity_noise_mps": self.velocity_noise_mps,
+            "velocity_noise_learnt": self.velocity_noise_learnt,
+            "bearings": self.bearings,
+            "outliers": self.outliers,
+            "reacquisitions": self.reacquisitions,
+        }

@@ -48,6 +48,18 @@ def _number(lo: float | None = None, *, lo_open: bool = False, hi: float | None 
     return check
 
 
+def _number_or_auto(v: object) -> float | str:
+    """A noise setting: ``"auto"`` (learnt online) or a number (told)."""
+    if v == "auto":
+        return "auto"
+    if isinstance(v, str):
+        try:
+            v = float(v)
+        except ValueError:
+            raise ValueError(f'must be "auto" or a number, got {v!r}') from None
+    return _number()(v)
+
+
 def _optional(check: Callable[[object], Any]) -> Callable[[object], Any]:
     def opt(v: object) -> Any:
         return None if v is None else check(v)
@@ -144,6 +156,7 @@ ESTIMATOR_KEYS: dict[str, tuple[str, ...]] = {
         "bearing_noise_deg",
         "velocity_noise_mps",
         "bias_walk_mps_per_sqrt_s",
+        "robust",
         "hypotheses",
         "range_span",
     ),
@@ -151,8 +164,9 @@ ESTIMATOR_KEYS: dict[str, tuple[str, ...]] = {
 }
 OBSERVER_HELP = {
     "estimator": "riccati (default) or paper",
-    "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg)",
-    "velocity_noise_mps": "velocity noise per axis, 1 sigma (m/s)",
+    "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg); auto: learnt online",
+    "velocity_noise_mps": "white velocity noise per axis, 1 sigma (m/s); auto: learnt online",
+    "robust": "down-weight gross bearing errors (Huber, beyond the 99.9 % NIS quantile)",
     "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant)",
     "hypotheses": "filters in the bank",
     "range_span": "the bank spans guess/span to guess*span",
@@ -172,6 +186,8 @@ OBSERVER_HELP = {
     "hold_innovation_deg": "static hold while the bearing agrees within this (deg)",
     "max_buffer": "most samples of one stream kept waiting for the other",
 }
+#: Observer settings that are learnt online when ``"auto"`` (the default) or told as a number.
+AUTO_KEYS = ("bearing_noise_deg", "velocity_noise_mps")
 #: Observer fields not set from the settings (the dimension; the paper's initial state).
 _OBSERVER_FIXED = ("n", "xh1_0_m", "m_0_s", "zs_0_mps")
 
@@ -213,7 +229,12 @@ def _observer_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
         if f.name in _OBSERVER_FIXED:
             continue
         default = f.default
-        check = _choice(*ESTIMATORS) if f.name == "estimator" else _like(default)
+        if f.name == "estimator":
+            check = _choice(*ESTIMATORS)
+        elif f.name in AUTO_KEYS:
+            check = _number_or_auto
+        else:
+            check = _like(default)
         side = next((e for e, keys in ESTIMATOR_KEYS.items() if f.name in keys), None)
         help_ = OBSERVER_HELP.get(f.name, "") + (f" ({side} only)" if side else "")
         out[f.name] = (default, _checked_by(ObserverConfig, f.name, check), help_)

@@ -25,9 +25,11 @@ Streams (each at its own rate, on the vehicle's simulated clock):
 
 Every bearing message is built by inverting the reader's frame chain
 (:mod:`mav_observer.mavlink.adapters`, ``docs/frames.md``), from the true line of sight with
-isotropic angular noise. Output: a tlog file and/or any pymavlink output string (127.0.0.1 in
-tests and examples), plus the truth as JSON Lines, one line per bearing message, keyed by its
-``t_boot_s`` (the vehicle clock) and ``t_unix_s`` (the tlog time of the message).
+isotropic angular noise and, optionally, gross errors (``outlier_prob``: a share of the
+bearings off the line of sight by 5 to 30 degrees by default, a tracker's false lock).
+Output: a tlog file and/or any pymavlink output string (127.0.0.1 in tests and examples),
+plus the truth as JSON Lines, one line per bearing message, keyed by its ``t_boot_s`` (the
+vehicle clock) and ``t_unix_s`` (the tlog time of the message).
 """
 
 from __future__ import annotations
@@ -79,7 +81,16 @@ EARTH_R_M = 6_378_137.0
 
 @dataclass(frozen=True)
 class EmitterConfig:
-    """What to emit. Rates in Hz, angles in degrees, times in seconds."""
+    """What to emit. Rates in Hz, angles in degrees, times in seconds.
+
+    ``bearing_noise_deg``: the standard deviation of the isotropic Gaussian bearing noise
+    (degrees per tangent axis). ``outlier_prob``: the share of bearings, each drawn
+    independently, that are gross errors instead (in [0, 1); 0: none): the true line of sight
+    turned by an angle uniform in [``outlier_min_deg``, ``outlier_max_deg``] degrees about a
+    uniformly random axis perpendicular to it, as a tracker locked on the wrong thing would
+    report. The truth keeps the true line of sight. With ``outlier_prob`` 0 no random number
+    is drawn for outliers: a seed gives the same messages as before the knob existed.
+    """
 
     bearing: str = "gimbal"
     sysid: int = 1
@@ -91,6 +102,9 @@ class EmitterConfig:
     bearing_noise_deg: float = 0.0
     velocity_noise_mps: float = 0.0
     drop_prob: float = 0.0
+    outlier_prob: float = 0.0
+    outlier_min_deg: float = 5.0
+    outlier_max_deg: float = 30.0
     latency_s: float = 0.0
     camera_hfov_deg: float = 60.0
     camera_vfov_deg: float = 45.0
@@ -108,6 +122,14 @@ class EmitterConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.drop_prob < 1.0:
             raise ValueError(f"drop_prob must be in [0, 1), got {self.drop_prob}")
+        if not 0.0 <= self.outlier_prob < 1.0:
+            raise ValueError(f"outlier_prob must be in [0, 1), got {self.outlier_prob}")
+        if not 0.0 <= self.outlier_min_deg <= 180.0:
+            raise ValueError(f"outlier_min_deg must be in [0, 180], got {self.outlier_min_deg}")
+        if not self.outlier_min_deg <= self.outlier_max_deg <= 180.0:
+            raise ValueError(
+                f"outlier_max_deg must be in [outlier_min_deg, 180], got {self.outlier_max_deg}"
+            )
         if self.latency_s < 0.0 or self.duration_s <= 0.0:
             raise ValueError("latency_s must be >= 0 and duration_s > 0")
 
@@ -259,12 +281,32 @@ class Emitter:
             )
 
     def _noisy_los(self, s: VehicleState) -> np.ndarray:
+        """The line of sight as the sensor reports it (a unit NED vector): the Gaussian noise,
+        or with probability ``outlier_prob`` a gross error (see :class:`EmitterConfig`)."""
         y = s.rel_pos_ned_m / np.linalg.norm(s.rel_pos_ned_m)
-        if self.config.bearing_noise_deg > 0:
-            y = perturb_bearings(y[None, :], math.radians(self.config.bearing_noise_deg), self.rng)[
-                0
-            ]
+        cfg = self.config
+        # outlier draws only when the knob is on: with it off the random stream is unchanged
+        if cfg.outlier_prob > 0 and self.rng.random() < cfg.outlier_prob:
+            return self._outlier(y)
+        if cfg.bearing_noise_deg > 0:
+            y = perturb_bearings(y[None, :], math.radians(cfg.bearing_noise_deg), self.rng)[0]
         return y
+
+    def _outlier(self, y: np.ndarray) -> np.ndarray:
+        """``y`` (unit) turned by an angle uniform in [outlier_min_deg, outlier_max_deg] about
+        a uniformly random axis perpendicular to it."""
+        cfg = self.config
+        angle = math.radians(self.rng.uniform(cfg.outlier_min_deg, cfg.outlier_max_deg))
+        phi = self.rng.uniform(0.0, 2.0 * math.pi)
+        # an orthonormal basis (e1, e2) of the plane perpendicular to y
+        helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(y, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(y, e1)
+        axis = math.cos(phi) * e1 + math.sin(phi) * e2
+        # Rodrigues' rotation of y about an axis perpendicular to it
+        out = math.cos(angle) * y + math.sin(angle) * np.cross(axis, y)
+        return out / np.linalg.norm(out)
 
     def _bearings(self) -> Iterator[Emission]:
         cfg = self.config

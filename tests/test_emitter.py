@@ -83,6 +83,59 @@ def test_noise_drops_and_latency(tmp_path: Path) -> None:
     assert np.allclose(lag, 0.25, atol=1e-6)
 
 
+def bearing_errors_deg(em: Emitter) -> np.ndarray:
+    """The angle between each emitted gimbal bearing and its truth's line of sight."""
+    from mav_observer.mavlink import adapters
+    from mav_observer.mavlink.dialect import codec
+
+    dec = codec()
+    out = []
+    for e in em.emissions():
+        if e.truth is None:
+            continue
+        m = dec.decode(bytearray(e.frame))
+        assert m.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS"
+        b = np.array(
+            adapters.gimbal_boresight(
+                tuple(m.q), m.flags, 0, vehicle_yaw=e.truth["attitude_rpy_rad"][2]
+            )
+        )
+        los = np.array(e.truth["rel_pos_ned_m"])
+        los /= np.linalg.norm(los)
+        out.append(math.degrees(math.acos(min(1.0, float(b @ los)))))
+    return np.array(out)
+
+
+def test_bearing_outliers_are_a_share_of_gross_errors_off_the_true_line_of_sight() -> None:
+    p, sigma = 0.2, 0.5
+    cfg = EmitterConfig(duration_s=200.0, bearing_noise_deg=sigma, outlier_prob=p, seed=11)
+    em = Emitter(scenarios.orbit(duration_s=200.0), cfg)
+    err = bearing_errors_deg(em)
+    n = len(err)
+    assert n == 2000
+    out = err > 4.0  # the Gaussian part (0.5 deg per axis) passes 4 deg once in 10^14
+    k = int(out.sum())
+    assert abs(k - p * n) < 4.0 * math.sqrt(n * p * (1 - p))  # binomial, 4 sigma
+    assert err[out].min() >= 5.0 - 1e-3 and err[out].max() <= 30.0 + 1e-3
+    assert np.mean(err[out]) == pytest.approx(17.5, abs=2.0)  # uniform in [5, 30] deg
+    # the rest is the Gaussian noise about the truth's line of sight (a Rayleigh angle: the
+    # truth is the true line of sight, not the outlier)
+    assert err[~out].max() < 5.0 * sigma
+    assert np.median(err[~out]) == pytest.approx(sigma * math.sqrt(2 * math.log(2)), rel=0.1)
+
+
+def test_no_outliers_leaves_the_random_stream_and_the_frames_as_they_were() -> None:
+    base = {"duration_s": 30.0, "bearing_noise_deg": 0.5, "velocity_noise_mps": 0.1}
+    base |= {"drop_prob": 0.1, "seed": 5}
+    sc = scenarios.orbit(duration_s=30.0)
+    plain = list(Emitter(sc, EmitterConfig(**base)).emissions())
+    zero = list(Emitter(sc, EmitterConfig(**base, outlier_prob=0.0)).emissions())
+    assert [e.frame for e in zero] == [e.frame for e in plain]
+    assert [e.truth for e in zero] == [e.truth for e in plain]
+    some = list(Emitter(sc, EmitterConfig(**base, outlier_prob=0.05)).emissions())
+    assert [e.frame for e in some] != [e.frame for e in plain]
+
+
 def test_pacing_real_time_and_speed_factor(tmp_path: Path) -> None:
     em = Emitter(scenarios.orbit(), EmitterConfig(duration_s=2.0))
     t0 = time.monotonic()
@@ -104,6 +157,12 @@ def test_bad_configuration_is_refused() -> None:
         EmitterConfig(bearing="radar")
     with pytest.raises(ValueError, match="attitude_hz must be > 0"):
         EmitterConfig(attitude_hz=0.0)
+    with pytest.raises(ValueError, match="outlier_prob"):
+        EmitterConfig(outlier_prob=1.0)
+    with pytest.raises(ValueError, match="outlier_min_deg"):
+        EmitterConfig(outlier_min_deg=-1.0)
+    with pytest.raises(ValueError, match="outlier_max_deg"):
+        EmitterConfig(outlier_min_deg=10.0, outlier_max_deg=5.0)
     with pytest.raises(ValueError, match="n=2"):
         Emitter(scenarios.planar(), EmitterConfig())
 

@@ -1,6 +1,7 @@
 """End-to-end accuracy: emitter tlogs replayed through the product, scored against the truth.
 
 ``python -m bench.accuracy.e2e [--cases NAME ...] [--seeds N] [--duration S] [--jobs J]``
+``[--defaults | --adaptive] [--write-docs]``
 
 Unlike the batched harness (:mod:`bench.accuracy.run`), which feeds the estimator's maths
 directly, every run here goes the way a user's data goes:
@@ -18,6 +19,10 @@ directly, every run here goes the way a user's data goes:
    ratio says how far), the range bias, the bias RMS, NEES per axis (from the per-axis
    standard deviations published in every record), and the time after which the error stays
    below 10 % of the range.
+
+The cases of :data:`ADAPTIVE` (the noise not told: a bearing noise other than the defaults',
+velocity noise, bearing outliers) are run only when asked for (``--adaptive`` or ``--cases``)
+and have a block of their own in ``docs/accuracy.md``.
 """
 
 from __future__ import annotations
@@ -72,6 +77,8 @@ class E2ECase:
 
     @property
     def bearing_deg(self) -> float:
+        """The Gaussian bearing noise (degrees; the CRLB's): outliers (``outlier_prob``) are
+        not counted, the bound is that of the clean stream."""
         return float(self.emitter.get("bearing_noise_deg", 0.0))
 
     @property
@@ -232,6 +239,55 @@ CASES: dict[str, E2ECase] = {
             },
             settings=TOLD_05,
         ),
+        # the noise not told (the default settings), for an estimator that learns it online:
+        # the plain gimbal figure-8 of gimbal_vehicle_fig8 with other noise than the defaults
+        # assume, and with gross bearing errors; the CRLB is the clean stream's (outliers not
+        # counted)
+        E2ECase(
+            "noise_0p2deg",
+            "bearing noise 0.2 deg, exact velocity, not told (gimbal, own component, figure-8)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, "bearing_noise_deg": 0.2},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+        ),
+        E2ECase(
+            "noise_2deg",
+            "bearing noise 2 deg, exact velocity, not told (gimbal, own component, figure-8)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, "bearing_noise_deg": 2.0},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+        ),
+        E2ECase(
+            "velocity_white_0p1",
+            "bearing noise 0.5 deg, white velocity noise 0.1 m/s, not told (gimbal, figure-8)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "velocity_noise_mps": 0.1},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+        ),
+        E2ECase(
+            "outliers_5pct",
+            "bearing noise 0.5 deg and 5 % outliers 5-30 deg off (false locks), not told",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "outlier_prob": 0.05},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+        ),
+        E2ECase(
+            "outliers_20pct",
+            "bearing noise 0.5 deg and 20 % outliers 5-30 deg off (false locks), not told",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "outlier_prob": 0.2},
+            realism=OWN_COMPONENT,
+            yaw_swing_deg=30.0,
+        ),
     )
 }
 HEADLINE = CASES_HEADLINE = (
@@ -241,6 +297,17 @@ HEADLINE = CASES_HEADLINE = (
     "mount_status_orbit",
     "camera_point_orbit",
 )
+#: The noise not told, learnt online (and bearing outliers): run with ``--adaptive`` (or by
+#: name with ``--cases``), in their own block of ``docs/accuracy.md``.
+ADAPTIVE = (
+    "noise_0p2deg",
+    "noise_2deg",
+    "velocity_white_0p1",
+    "outliers_5pct",
+    "outliers_20pct",
+)
+#: The blocks of ``docs/accuracy.md`` this bench writes.
+BLOCK, BLOCK_DEFAULTS, BLOCK_ADAPTIVE = "end-to-end", "end-to-end-defaults", "end-to-end-adaptive"
 
 
 def make_scenario(name: str, duration_s: float, **params: Any) -> scenarios.Scenario:
@@ -518,9 +585,68 @@ def markdown_defaults(
     )
 
 
+def markdown_adaptive(
+    res: dict[str, dict[str, Any]], *, seeds: int, duration_s: float, wall_s: float
+) -> str:
+    """The block of the :data:`ADAPTIVE` cases: the noise not told, learnt online, and
+    bearing outliers."""
+    return "\n".join(
+        [
+            "### Noise not told: learnt online, and outliers",
+            "",
+            f"`python -m bench.accuracy.e2e --adaptive --seeds {seeds} --write-docs` "
+            f"({len(res) * seeds} runs of {duration_s:g} s, {wall_s:.0f} s): the gimbal "
+            "figure-8 of gimbal_vehicle_fig8 with the default settings, on streams whose noise "
+            "differs from what the defaults assume, or with a share of bearings that are gross "
+            "errors (5-30 deg off the line of sight, a tracker's false lock); the CRLB is that "
+            "of the clean stream's true noise (the outliers not counted).",
+            "",
+            table(res),
+            "",
+            "| case | what |",
+            "|---|---|",
+            *[f"| {c} | {CASES[c].description} |" for c in res],
+        ]
+    )
+
+
+def block_of(cases: Sequence[str], *, defaults: bool, adaptive: bool) -> str:
+    """The block of ``docs/accuracy.md`` that a run of ``cases`` writes: the adaptive cases
+    go in a block of their own, and not with the others (:class:`ValueError` for a mix)."""
+    n_adaptive = sum(c in ADAPTIVE for c in cases)
+    if adaptive or (cases and n_adaptive == len(cases)):
+        if n_adaptive != len(cases):
+            raise ValueError(
+                f"the {BLOCK_ADAPTIVE} block is of the ADAPTIVE cases only {ADAPTIVE}, "
+                f"got {[c for c in cases if c not in ADAPTIVE]}"
+            )
+        name = BLOCK_ADAPTIVE
+    elif n_adaptive:
+        raise ValueError(
+            f"the ADAPTIVE cases {[c for c in cases if c in ADAPTIVE]} have a block of their "
+            "own: run them apart (--adaptive)"
+        )
+    else:
+        name = BLOCK_DEFAULTS if defaults else BLOCK
+    if name not in blocks.ORDER:  # put_block would drop it, and so would the page's writer
+        raise ValueError(f"block {name!r} is not in bench.accuracy.blocks.ORDER {blocks.ORDER}")
+    return name
+
+
+def write_block(name: str, res: dict[str, dict[str, Any]], **kw: Any) -> None:
+    """Write block ``name`` (of :func:`block_of`) of ``docs/accuracy.md`` from ``res``."""
+    make = {BLOCK: markdown, BLOCK_DEFAULTS: markdown_defaults, BLOCK_ADAPTIVE: markdown_adaptive}
+    blocks.put_block(DOCS, name, make[name](res, **kw))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.accuracy.e2e", description=__doc__)
-    p.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    p.add_argument(
+        "--cases",
+        nargs="+",
+        choices=list(CASES),
+        help="default: every case but the ADAPTIVE ones (with --adaptive: those)",
+    )
     p.add_argument("--seeds", type=int, default=4)
     p.add_argument("--duration", type=float, default=300.0, help="s per run")
     p.add_argument("--jobs", type=int, default=min(4, os.cpu_count() or 1))
@@ -532,7 +658,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="the product's default settings instead of each case's (the noise not told)",
     )
+    p.add_argument(
+        "--adaptive",
+        action="store_true",
+        help=f"the cases of the noise not told and outliers {ADAPTIVE} (already with the "
+        f"default settings); --write-docs writes their block, {BLOCK_ADAPTIVE}",
+    )
     args = p.parse_args(argv)
+    if args.cases is None:
+        args.cases = list(ADAPTIVE) if args.adaptive else [c for c in CASES if c not in ADAPTIVE]
     if args.from_json:
         doc = json.loads(args.from_json.read_text())
         if "results" not in doc:  # a bare {case: results} file
@@ -541,13 +675,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         res, wall = doc["results"], doc["wall_s"]
         args.seeds, args.duration = doc["seeds"], doc["duration_s"]
         if args.write_docs:
-            blocks.put_block(
-                DOCS,
-                "end-to-end",
-                markdown(res, seeds=args.seeds, duration_s=args.duration, wall_s=wall),
-            )
+            try:
+                name = block_of(list(res), defaults=args.defaults, adaptive=args.adaptive)
+            except ValueError as e:
+                p.error(str(e))
+            write_block(name, res, seeds=args.seeds, duration_s=args.duration, wall_s=wall)
         print(table(res))
         return 0
+    block = None
+    if args.write_docs:  # refused before the runs, not after
+        try:
+            block = block_of(args.cases, defaults=args.defaults, adaptive=args.adaptive)
+        except ValueError as e:
+            p.error(str(e))
     t0 = time.perf_counter()
     res = run_cases(args.cases, args.seeds, args.duration, args.jobs, args.defaults)
     wall = time.perf_counter() - t0
@@ -563,12 +703,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         doc = {"results": res, "wall_s": wall, "seeds": args.seeds, "duration_s": args.duration}
         args.json.write_text(json.dumps(doc, indent=1, default=str))
-    if args.write_docs and args.defaults:
-        text = markdown_defaults(res, seeds=args.seeds, duration_s=args.duration, wall_s=wall)
-        blocks.put_block(DOCS, "end-to-end-defaults", text)
-    elif args.write_docs:
-        text = markdown(res, seeds=args.seeds, duration_s=args.duration, wall_s=wall)
-        blocks.put_block(DOCS, "end-to-end", text)
+    if block is not None:
+        write_block(block, res, seeds=args.seeds, duration_s=args.duration, wall_s=wall)
     return 0
 
 

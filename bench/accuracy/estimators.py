@@ -23,7 +23,7 @@ from typing import Protocol
 import numpy as np
 
 from mav_observer import riccati as rc
-from mav_observer.observer import BiasObserver, ObserverConfig
+from mav_observer.observer import BiasObserver, ObserverConfig, outlier_nis
 from mav_observer.samples import BearingSample, VelocitySample
 
 from .core import SIGMA_FLOOR_RAD
@@ -55,8 +55,11 @@ class Riccati:
 
     name = "riccati"
 
-    def __init__(self, sigma_rad: float, q_x: float) -> None:
-        self.prm = rc.BankParams(sigma_rad=max(sigma_rad, SIGMA_FLOOR_RAD), q_x=q_x)
+    def __init__(self, sigma_rad: float, q_x: float, n: int = 3) -> None:
+        # the product's settings when told the noise (robust weighting of gross errors on)
+        self.prm = rc.BankParams(
+            sigma_rad=max(sigma_rad, SIGMA_FLOOR_RAD), q_x=q_x, outlier_nis=outlier_nis(n - 1)
+        )
 
     def start(self, t0: float, y0: np.ndarray, v0: np.ndarray, r0: np.ndarray) -> None:
         # seeded at the first bearing, which is not applied again (as in BiasObserver)
@@ -186,7 +189,7 @@ def make(
     if per_sample:
         raise NotReadyError(f"{name!r} has no product form to drive per sample")
     if name == "riccati":
-        return Riccati(sigma_rad, q_x)
+        return Riccati(sigma_rad, q_x, n)
     if name in ("ekf", "plkf"):
         return Kalman(name, sigma_rad, q_x)
     raise ValueError(f"unknown estimator {name!r}; choose from {ALL}")
