@@ -67,6 +67,17 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument(
         "--truth", type=Path, help="a reference track, JSON Lines (docs/schema.md): errors too"
     )
+    rp.add_argument(
+        "--smooth",
+        nargs="?",
+        type=Path,
+        const=True,
+        default=None,
+        metavar="FILE",
+        help="afterwards, every estimate from the whole log (batch fits on windows): the "
+        "post-flight answer, in the summary and, given FILE, one record per bearing (JSON "
+        "Lines, docs/schema.md)",
+    )
     rp.add_argument("--summary-json", type=Path, help="write the summary as JSON")
     rp.add_argument(
         "--config",
@@ -373,6 +384,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         keep_series=bool(args.plot or args.truth),
         duration_s=args.duration,
         progress=not args.quiet and sys.stderr.isatty(),
+        smooth=args.smooth is not None,
+        smooth_jsonl=args.smooth if isinstance(args.smooth, Path) else None,
     )
     errors = None
     if args.truth:

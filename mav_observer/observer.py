@@ -195,6 +195,10 @@ class ObserverConfig:
             raise ConfigError(f"n must be an integer >= {MIN_DIM}, got {self.n!r}")
         if self.estimator not in ESTIMATORS:
             raise ConfigError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
+        for name in ("bearing_noise_deg", "velocity_noise_mps"):
+            val = getattr(self, name)
+            if isinstance(val, str) and val != AUTO:
+                raise ConfigError(f'{name} must be "auto" or a number, got {val!r}')
         if self.bearing_noise_deg != AUTO:
             object.__setattr__(
                 self, "bearing_noise_deg", _positive("bearing_noise_deg", self.bearing_noise_deg)
@@ -490,6 +494,12 @@ class BiasObserver:
     def counts(self) -> dict[str, int]:
         """Samples accepted per stream."""
         return dict(self._counts)
+
+    @property
+    def reacquisitions(self) -> int:
+        """Times the riccati estimator started again from its Riccati observer because its
+        bearings stopped agreeing with it (0 for the paper's observer)."""
+        return 0 if self._bank is None else int(self._bank.reseeds[0])
 
     def noise(self) -> NoiseLevels | None:
         """The noise levels in use (learnt or told) and the robust update's counts, for the

@@ -8,6 +8,7 @@ the tracker uses; a connection string is read live (``--duration``).
 from __future__ import annotations
 
 import csv
+import json
 import logging
 import math
 import sys
@@ -19,12 +20,16 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
+from mav_observer import smoother
 from mav_observer.errors import MavObserverError
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source
 from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
+from mav_observer.observer import BEARING_NOISE_PRIOR_DEG
 from mav_observer.records import CSV_COLUMNS, EstimateRecord
-from mav_observer.samples import Status
+from mav_observer.samples import NoiseLevels, Status
 
 log = logging.getLogger(__name__)
 
@@ -35,6 +40,10 @@ BEARING_MESSAGES = (
     "MOUNT_STATUS",
     "LANDING_TARGET",
 )
+
+
+#: Version of the smoothed records (``replay --smooth``, ``docs/schema.md``).
+SMOOTHED_SCHEMA = 1
 
 
 class ReplayError(MavObserverError):
@@ -93,6 +102,8 @@ class TargetSummary:
     nis_sum: float = 0.0
     nis_count: int = 0
     final: EstimateRecord | None = None
+    #: the noise levels in use at the end (learnt or told) and the robust update's counts
+    noise: NoiseLevels | None = None
 
     def add(self, r: EstimateRecord, excitation_min: float) -> None:
         if self.final is not None and self.last_t_boot_s is not None:
@@ -154,6 +165,13 @@ class ReplaySummary:
     series: dict[str, Series] = field(default_factory=dict)
     #: ``(t_boot_s, sysid, event)`` of the resets and clock events, in order
     event_log: list[tuple[float, int, str]] = field(default_factory=list)
+    #: ``replay --smooth``: each target's smoothed track, by ``sysid/target``
+    smoothed: dict[str, smoother.Smoothed] = field(default_factory=dict)
+    #: its last estimate of the target's position: ``(t_boot_s, target_pos_ned_m,
+    #: rel_pos_std_ned_m, windows fitted, windows)``
+    smoothed_final: dict[str, tuple[float, list[float], list[float], int, int]] = field(
+        default_factory=dict
+    )
 
     @property
     def messages_per_s(self) -> float:
@@ -182,6 +200,18 @@ class ReplaySummary:
                     "excited_share": t.excited_share,
                     "converged_share": t.converged_share,
                     "nis_mean": t.nis_mean,
+                    "noise": None if t.noise is None else t.noise.to_dict(),
+                    "smoothed": {
+                        key: {
+                            "t_boot_s": v[0],
+                            "target_pos_ned_m": v[1],
+                            "rel_pos_std_ned_m": v[2],
+                            "windows_fitted": v[3],
+                            "windows": v[4],
+                        }
+                        for key, v in self.smoothed_final.items()
+                        if key.split("#")[0] == k
+                    },
                     "final": None if t.final is None else t.final.to_dict(),
                 }
                 for k, t in self.targets.items()
@@ -219,9 +249,29 @@ class ReplaySummary:
                 + (
                     ""
                     if t.nis_mean is None
-                    else f", innovations {t.nis_mean:.2f} times the noise told (1 is consistent)"
+                    else f", innovations {t.nis_mean:.2f} times their expected size with the "
+                    "noise in use (1 is consistent)"
                 )
             )
+            if t.noise is not None:
+                nz = t.noise
+                lines.append(
+                    f"  noise: bearing {nz.bearing_noise_deg:.3g} deg "
+                    f"({'learnt' if nz.bearing_noise_learnt else 'told'}), velocity "
+                    f"{nz.velocity_noise_mps:.3g} m/s "
+                    f"({'learnt' if nz.velocity_noise_learnt else 'told'}); "
+                    f"{nz.outliers} of {nz.bearings} bearings down-weighted as gross errors; "
+                    f"re-acquired {nz.reacquisitions} times"
+                )
+            for key, (t_s, tp, sd, fitted, windows) in self.smoothed_final.items():
+                if key.split("#")[0] != f"{t.sysid}/{t.target}":
+                    continue
+                lines.append(
+                    f"  smoothed over the whole log ({fitted} of {windows} windows fitted): "
+                    f"target_pos_ned at t_boot {t_s:.2f} s "
+                    f"[{', '.join(f'{v:.2f}' for v in tp)}] m, "
+                    f"1 sigma [{', '.join(f'{v:.2f}' for v in sd)}] m"
+                )
             if t.final is not None:
                 e = t.final.estimate
                 tp = t.final.target_pos_ned_m
@@ -290,11 +340,19 @@ def replay(
     duration_s: float | None = None,
     progress: bool = False,
     link: LinkOptions | None = None,
+    smooth: bool = False,
+    smooth_jsonl: Path | None = None,
+    smooth_window_s: float = smoother.WINDOW_S,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
     the source has no usable velocity or bearing stream. ``link``: how a live source is read
-    (a file ignores it)."""
+    (a file ignores it). ``smooth`` (or ``smooth_jsonl``): afterwards, every target's
+    estimate from the whole log (:mod:`mav_observer.smoother`), in the summary and, one
+    record per bearing, in ``smooth_jsonl`` (``docs/schema.md``)."""
     tracker = Tracker(tracker_config)
+    smooth = smooth or smooth_jsonl is not None
+    if smooth:
+        tracker.sample_log = smoother.SampleLog()
     exc_min = tracker.config.observer.excitation_min
     summary = ReplaySummary(source=source)
     if is_file_source(source):
@@ -354,6 +412,9 @@ def replay(
     summary.skipped = dict(tracker.skipped.most_common())
     summary.events = {k: v for k, v in tracker.events.items() if k != "targets"}
     summary.event_log = list(tracker.event_log)
+    for ts in summary.targets.values():
+        obs = tracker.observer(ts.sysid, ts.target)
+        ts.noise = None if obs is None else obs.noise()
     if isinstance(reader, TlogReader):
         st = reader.stats
         summary.messages_read = st.records
@@ -366,7 +427,76 @@ def replay(
         summary.messages_read = sum(reader.counts.values())
         summary.by_type = dict(reader.counts.most_common())
     _check_usable(summary, tracker)
+    if smooth:
+        _smooth(summary, tracker, smooth_jsonl, smooth_window_s)
     return summary
+
+
+def _smooth(summary: ReplaySummary, tracker: Tracker, path: Path | None, window_s: float) -> None:
+    """The smoother over every target's track; its records to ``path``."""
+    log_ = tracker.sample_log
+    if log_ is None:
+        return
+    try:
+        with ExitStack() as stack:
+            fh: TextIO | None = None
+            if path is not None:
+                fh = stack.enter_context(open(path, "w", encoding="utf-8"))
+            for sysid, target, epoch in log_.tracks():
+                data = log_.data(sysid, target, epoch)
+                if data is None:
+                    continue
+                tb, y, tv, pos, vel = data
+                obs = tracker.observer(sysid, target)
+                nz = None if obs is None else obs.noise()
+                sigma = math.radians(
+                    nz.bearing_noise_deg if nz is not None else BEARING_NOISE_PRIOR_DEG
+                )
+                res = smoother.smooth(tb, y, tv, vel, pos, sigma_rad=sigma, window_s=window_s)
+                key = f"{sysid}/{target}"
+                if epoch:
+                    key += f"#{epoch}"
+                summary.smoothed[key] = res
+                std = res.rel_pos_std_ned_m
+                vpos = np.column_stack([np.interp(tb, tv, pos[:, i]) for i in range(3)])
+                ok = np.flatnonzero(res.window >= 0)
+                if len(ok):
+                    k = int(ok[-1])
+                    summary.smoothed_final[key] = (
+                        float(tb[k]),
+                        (vpos[k] + res.rel_pos_ned_m[k]).tolist(),
+                        std[k].tolist(),
+                        sum(f[2] is not None for f in res.fits),
+                        len(res.fits),
+                    )
+                if fh is None:
+                    continue
+                bstd = np.sqrt(np.diagonal(res.bias_cov_m2ps2, axis1=1, axis2=2))
+                for k in range(len(tb)):
+                    if res.window[k] < 0:
+                        continue
+                    x = res.rel_pos_ned_m[k]
+                    s, e, _, _ = res.fits[res.window[k]]
+                    rec = {
+                        "schema": SMOOTHED_SCHEMA,
+                        "t_boot_s": float(tb[k]),
+                        "sysid": sysid,
+                        "target": target,
+                        "epoch": epoch,
+                        "rel_pos_ned_m": x.tolist(),
+                        "range_m": float(np.linalg.norm(x)),
+                        "rel_pos_std_ned_m": std[k].tolist(),
+                        "bias_ned_mps": res.bias_ned_mps[k].tolist(),
+                        "bias_std_ned_mps": bstd[k].tolist(),
+                        "target_pos_ned_m": (vpos[k] + x).tolist(),
+                        "vehicle_pos_ned_m": vpos[k].tolist(),
+                        "window_s": [s, e],
+                    }
+                    fh.write(json.dumps(rec, separators=(",", ":")))
+                    fh.write("\n")
+
+    except OSError as exc:
+        raise ReplayError(f"cannot write output: {exc}") from exc
 
 
 def _check_usable(summary: ReplaySummary, tracker: Tracker) -> None:

@@ -297,6 +297,8 @@ class Service:
         for name, tgt in sorted(view.targets.items()):
             rec = tgt.last_record
             e = None if rec is None else rec.estimate
+            obs = self.tracker.observer(view.sysid, name)
+            noise = None if obs is None else obs.noise()
             observers[name] = {
                 "source": tgt.source,
                 "status": self._target_status(view, tgt, now),
@@ -308,6 +310,7 @@ class Service:
                 else round(now - tgt.last_estimate_mono, 3),
                 "estimates": tgt.estimates,
                 "published": tgt.published,
+                "noise": None if noise is None else noise.to_dict(),
             }
         doc = {
             "schema": STATUS_SCHEMA,

@@ -429,6 +429,9 @@ def test_a_bearing_arriving_after_its_stretch_was_committed_is_refused() -> None
         ({"initial_range_m": -5.0}, "initial_range_m"),
         ({"estimator": "ukf"}, "estimator must be one of"),
         ({"bearing_noise_deg": 0.0}, "bearing_noise_deg must be a finite number > 0, got 0.0"),
+        ({"bearing_noise_deg": "loud"}, 'bearing_noise_deg must be "auto" or a number'),
+        ({"velocity_noise_mps": "Auto"}, 'velocity_noise_mps must be "auto" or a number'),
+        ({"robust": "yes"}, "robust must be true or false"),
         ({"velocity_noise_mps": -0.1}, "velocity_noise_mps must be a finite number >= 0"),
         ({"bias_walk_mps_per_sqrt_s": math.inf}, "bias_walk_mps_per_sqrt_s"),
         ({"hypotheses": 0}, r"hypotheses must be an integer in \[1, 31\], got 0"),
@@ -488,6 +491,8 @@ def test_save_and_restore_continue_bit_identically(estimator: str) -> None:
         (lambda d: d.pop("kalman"), "riccati estimator has no 'kalman'"),
         (lambda d: d["kalman"]["bank"]["p"][0][0].__setitem__(0, math.nan), "'kalman.bank.p'"),
         (lambda d: d["kalman"]["bank"].pop("logw"), "'kalman' is malformed"),
+        (lambda d: d["kalman"]["bank"].update(noise_alpha=[0.0]), "noise_alpha/noise_beta"),
+        (lambda d: d.update(velocity_noise={"w": 1.0}), "velocity noise state is malformed"),
         (
             lambda d: d["kalman"]["bank"].update(owner=[3] * len(d["kalman"]["bank"]["owner"])),
             "foreign owner",
@@ -636,3 +641,54 @@ def test_an_interval_mean_velocity_makes_the_prediction_exact(estimator: str) ->
     np.testing.assert_allclose(
         plain.predict(1.5).x_m - x0, np.array([0.375, 1.125, 0.0]) + 1.5 * a0, atol=1e-9
     )
+
+
+# -- noise learnt online ------------------------------------------------------------------
+
+
+def _run_stream(obs: BiasObserver, bearing_deg: float, velocity_mps: float) -> None:
+    stream = generate(
+        scenarios.figure8(duration_s=120.0),
+        seed=12,
+        bearing_rate_hz=20.0,
+        velocity_rate_hz=10.0,
+        noise=Noise(bearing_sigma_deg=bearing_deg, velocity_sigma_mps=velocity_mps),
+    )
+    for ev in stream.events():
+        (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
+
+
+def test_by_default_the_noise_is_learnt_and_reported() -> None:
+    """Figure-8, 2 deg of bearing noise and 0.1 m/s of velocity noise, none told: after
+    120 s the noise in use is within 20 % of both."""
+    obs = BiasObserver(ObserverConfig())
+    assert obs.config.bearing_noise_deg == "auto" and obs.config.velocity_noise_mps == "auto"
+    _run_stream(obs, 2.0, 0.1)
+    nz = obs.noise()
+    assert nz is not None and nz.bearing_noise_learnt and nz.velocity_noise_learnt
+    assert nz.bearing_noise_deg == pytest.approx(2.0, rel=0.2)
+    assert nz.velocity_noise_mps == pytest.approx(0.1, rel=0.2)
+    assert nz.bearings == obs.counts["bearing"] - 1  # the first one seeds the bank
+    assert nz.outliers < 0.01 * nz.bearings and nz.reacquisitions == 0
+
+
+def test_a_noise_told_as_a_number_is_used_as_told() -> None:
+    obs = BiasObserver(ObserverConfig(bearing_noise_deg=0.7, velocity_noise_mps=0.03))
+    _run_stream(obs, 2.0, 0.1)
+    nz = obs.noise()
+    assert nz is not None and not nz.bearing_noise_learnt and not nz.velocity_noise_learnt
+    assert nz.bearing_noise_deg == pytest.approx(0.7)
+    assert nz.velocity_noise_mps == pytest.approx(0.03)
+    assert BiasObserver(ObserverConfig.paper()).noise() is None
+
+
+def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> None:
+    obs = _started_observer()
+    d = json.loads(json.dumps(obs.to_dict()))
+    for key in ("noise_alpha", "noise_beta", "outliers", "bearings"):
+        del d["kalman"]["bank"][key]
+    del d["velocity_noise"]
+    restored = BiasObserver.from_dict(d)
+    nz = restored.noise()
+    assert nz is not None and nz.bearing_noise_deg == pytest.approx(0.5)
+    assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)

@@ -35,6 +35,18 @@ def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
     assert s.tracker_config().sysids == (1, 2)
 
 
+def test_the_noise_is_auto_by_default_and_a_number_is_told(tmp_path: Path) -> None:
+    assert st.resolve(None)["observer"]["bearing_noise_deg"] == "auto"
+    cfg = st.resolve(None).observer_config()
+    assert cfg.bearing_noise_deg == "auto" and cfg.velocity_noise_mps == "auto"
+    f = tmp_path / "told.toml"
+    f.write_text('[observer]\nbearing_noise_deg = 0.3\nvelocity_noise_mps = "auto"\n')
+    cfg = st.resolve(f, {"observer": {"velocity_noise_mps": 0.02}}).observer_config()
+    assert (cfg.bearing_noise_deg, cfg.velocity_noise_mps) == (0.3, 0.02)
+    assert cfg.bank_params(0.1).learn_noise is False
+    assert st.resolve(None).observer_config().bank_params(0.1).learn_noise is True
+
+
 @pytest.mark.parametrize(
     ("layer", "match"),
     [
@@ -56,6 +68,12 @@ def test_file_then_flags_override_in_that_order(tmp_path: Path) -> None:
             r"observer\.bearing_noise_deg applies to the 'riccati' estimator only",
         ),
         ({"observer": {"n": 2}}, r"unknown setting observer\.n"),
+        (
+            {"observer": {"bearing_noise_deg": "learn"}},
+            r'observer\.bearing_noise_deg must be "auto" or a number',
+        ),
+        ({"observer": {"velocity_noise_mps": -0.1}}, r"observer\.velocity_noise_mps must be"),
+        ({"observer": {"robust": "yes"}}, r"observer\.robust must be true or false"),
         (
             {"tracker": {"attitude_wait_s": 9}},
             r"tracker\.attitude_wait_s must be a number in \[0, 5\]",

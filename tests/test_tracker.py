@@ -523,3 +523,35 @@ def test_bearings_waiting_when_the_stream_pauses_are_released_by_time() -> None:
     released = tr.release_due(last + 1.0)
     assert len(released) == waiting and len(recs) + waiting == 60
     assert tr.events["attitude_extrapolated"] == 4
+
+
+def test_a_target_that_moves_far_is_reacquired_and_the_event_counted() -> None:
+    """Converged on a target 20 m ahead, then the gimbal follows another one 40 m to the
+    side (a tracker that locked onto something else): the estimate starts again, the event
+    is counted and logged, and the estimate ends near the new target."""
+    tr = Tracker(TrackerConfig(observer=ObserverConfig(initial_range_m=20.0)))
+    msgs = []
+    for i in range(1200):  # 120 s at 10 Hz, a 20 m circle around the origin
+        ms = 100_000 + 100 * i
+        th = 2 * math.pi * i / 600
+        p = (20.0 * math.cos(th), 20.0 * math.sin(th), -10.0)
+        u = (-20.0 * math.sin(th) * 2 * math.pi / 60, 20.0 * math.cos(th) * 2 * math.pi / 60, 0.0)
+        tgt = (0.0, 0.0, 0.0) if i < 600 else (0.0, 40.0, 0.0)
+        d = [tgt[k] - p[k] for k in range(3)]
+        yaw = math.atan2(d[1], d[0])
+        pitch = math.atan2(-d[2], math.hypot(d[0], d[1]))
+        q = (
+            math.cos(yaw / 2) * math.cos(pitch / 2),
+            -math.sin(yaw / 2) * math.sin(pitch / 2),
+            math.cos(yaw / 2) * math.sin(pitch / 2),
+            math.sin(yaw / 2) * math.cos(pitch / 2),
+        )
+        msgs += [att(ms), lpn(ms, p, u), gimbal(ms + 5, q=q, flags=FLAGS_VEHICLE | 0x10)]
+    recs = feed(tr, msgs)
+    assert tr.events["reacquired"] >= 1
+    assert any(e == "reacquired" and t > 160.0 for t, _, e in tr.event_log)
+    last = recs[-1]
+    assert last.target_pos_ned_m is not None
+    assert math.dist(last.target_pos_ned_m, (0.0, 40.0, 0.0)) < 2.0
+    obs = tr.observer(1, "gimbal")
+    assert obs is not None and obs.reacquisitions == tr.events["reacquired"]

@@ -48,6 +48,7 @@ from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.mavlink.timebase import ClockMap
 from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
+from mav_observer.smoother import SampleLog
 from mav_observer.targets import Targets, VehicleFix, check_saved
 
 log = logging.getLogger(__name__)
@@ -244,6 +245,8 @@ class Tracker:
         self.events: Counter[str] = Counter()
         #: ``(t_boot_s, sysid, event)`` of the latest events (resets, clock changes, ...)
         self.event_log: deque[tuple[float, int, str]] = deque(maxlen=10_000)
+        #: when set (replay --smooth), every velocity and bearing used is kept there
+        self.sample_log: SampleLog | None = None
         self._warned: Counter[str] = Counter()  # log rate limiting
         #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
         self._pending: dict[int, list[dict[str, Any]]] = {}
@@ -531,6 +534,8 @@ class Tracker:
             raise Skip("out_of_order", f"LOCAL_POSITION_NED at {tb:.3f} s after a later one")
         mean_v = self._interval_mean_velocity(veh, tb, pos, vel)
         veh.position = (tb, pos, vel)
+        if self.sample_log is not None:
+            self.sample_log.local_position(veh.sysid, tb, pos, vel)
         v = [-vel[0], -vel[1], -vel[2]]  # the paper's v = -u (checked finite above)
         veh.velocity = (tb, v)
         if veh.sysid in self._pending:
@@ -806,10 +811,26 @@ class Tracker:
             raise Skip("zero_length", f"bearing {direction}")
         inv = 1.0 / math.sqrt(n2)
         y = [direction[0] * inv, direction[1] * inv, direction[2] * inv]
+        obs = veh.targets.get(target)
+        reacq = 0 if obs is None else obs.reacquisitions
         try:
             est, new = veh.targets.bearing(target, source, tb, y, veh.velocity)
         except InvalidSampleError as exc:
             raise Skip("refused_bearing", str(exc)) from exc
+        obs = veh.targets.get(target)
+        if obs is not None and obs.reacquisitions > reacq:
+            # the bearings stopped agreeing with the estimate (the target moved, the tracker
+            # locked onto something else): the estimate starts again from the Riccati observer
+            self._note(veh, "reacquired")
+            log.warning(
+                "vehicle %d: target %r re-acquired at %.3f s: the bearings stopped agreeing "
+                "with its estimate",
+                veh.sysid,
+                target,
+                tb,
+            )
+        if self.sample_log is not None:
+            self.sample_log.bearing(veh.sysid, target, tb, y)
         if new:
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
