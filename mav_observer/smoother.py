@@ -28,6 +28,9 @@ from mav_observer.batch import BatchFit, NotObservableError, displacement_at, fi
 WINDOW_S = 120.0
 #: Huber threshold of the fits, in sigmas.
 HUBER_K = 2.0
+#: The whole log's one fit is kept when its residuals are within this share of the
+#: windows' (a constant ``a`` over the whole flight fits as well as one per window).
+WHOLE_TOLERANCE = 0.05
 #: Fewest bearings for a window to be fitted.
 MIN_BEARINGS = 20
 
@@ -73,6 +76,7 @@ def smooth(
     sigma_rad: float,
     window_s: float = WINDOW_S,
     huber_k: float = HUBER_K,
+    _split: bool = False,
 ) -> Smoothed:
     """Smooth one target's bearings ``(N, 3)`` (unit, NED) at the increasing
     ``t_bearing_s``, with the vehicle's measured velocity ``vel_ned_mps`` (the vehicle's
@@ -82,8 +86,8 @@ def smooth(
     tb = np.asarray(t_bearing_s, dtype=float)
     y = np.asarray(bearings, dtype=float)
     n = len(tb)
-    if not (math.isfinite(window_s) and window_s > 0.0):
-        raise ValueError(f"window_s must be a finite number > 0, got {window_s!r}")
+    if not window_s > 0.0:
+        raise ValueError(f"window_s must be a number > 0, got {window_s!r}")
     x = np.full((n, 3), math.nan)
     a = np.full((n, 3), math.nan)
     cx = np.full((n, 3, 3), math.nan)
@@ -93,7 +97,19 @@ def smooth(
     fits: list[tuple[float, float, BatchFit | None, str]] = []
     if n == 0:
         return Smoothed(tb, x, cx, a, ca, used, fits)
-    for w, (s, e) in enumerate(_windows(float(tb[0]), float(tb[-1]), window_s)):
+    spans = _windows(float(tb[0]), float(tb[-1]), window_s)
+    if len(spans) > 1 and not _split:
+        # one fit over the whole log when it explains the bearings as well as the windows
+        # do (a constant ``a`` all along: more data per unknown); windows when it does not
+        whole = smooth(tb, y, t_vel_s, vel_ned_mps, pos_ned_m, sigma_rad=sigma_rad,
+                       window_s=math.inf, huber_k=huber_k)  # fmt: skip
+        parts = smooth(tb, y, t_vel_s, vel_ned_mps, pos_ned_m, sigma_rad=sigma_rad,
+                       window_s=window_s, huber_k=huber_k, _split=True)  # fmt: skip
+        r_whole, r_parts = _residual_rms(whole), _residual_rms(parts)
+        if whole.fits and r_whole <= (1.0 + WHOLE_TOLERANCE) * r_parts:
+            return whole
+        return parts
+    for w, (s, e) in enumerate(spans):
         sel = np.flatnonzero((tb >= s) & (tb <= e))
         if len(sel) < MIN_BEARINGS:
             fits.append((s, e, None, f"{len(sel)} bearings, fewer than {MIN_BEARINGS}"))
@@ -128,6 +144,17 @@ def smooth(
         best[idx] = dist[better]
         used[idx] = w
     return Smoothed(tb, x, cx, a, ca, used, fits)
+
+
+def _residual_rms(s: Smoothed) -> float:
+    """The RMS angular residual (rad) of the fits, pooled over the windows by bearing count."""
+    num = den = 0.0
+    for _, _, fit, _ in s.fits:
+        if fit is not None:
+            k = len(fit.t_s)
+            num += k * fit.residual_rms_rad**2
+            den += k
+    return math.sqrt(num / den) if den > 0 else math.inf
 
 
 @dataclass

@@ -21,6 +21,7 @@ from mav_observer import (
     Status,
     VelocitySample,
 )
+from mav_observer.observer import BEARING_NOISE_PRIOR_DEG
 from sim import scenarios
 from sim.reference import rk4_reference
 from sim.runner import RunResult, run
@@ -690,5 +691,5 @@ def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> 
     del d["velocity_noise"]
     restored = BiasObserver.from_dict(d)
     nz = restored.noise()
-    assert nz is not None and nz.bearing_noise_deg == pytest.approx(0.5)
+    assert nz is not None and nz.bearing_noise_deg == pytest.approx(BEARING_NOISE_PRIOR_DEG)
     assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)

@@ -23,6 +23,7 @@ LABELS = {
     "ekf": "EKF",
     "plkf": "PLKF",
     "riccati": "riccati (ours)",
+    "riccati_auto": "riccati, noise learnt",
 }
 COLOURS = {
     "paper": "tab:red",
@@ -30,6 +31,7 @@ COLOURS = {
     "ekf": "tab:green",
     "plkf": "tab:purple",
     "riccati": "tab:blue",
+    "riccati_auto": "tab:cyan",
 }
 
 
@@ -95,8 +97,8 @@ def headline_tables(results: list[Result]) -> str:
     and its ratio to the CRLB per estimator; then t10 and the mean range error. Empty if
     none of the headline cases was run."""
     look = _lookup(results)
-    cases = [c for c in HEADLINE if any((c, e) in look for e in estimators.ALL)]
-    names = [e for e in estimators.ALL if any((c, e) in look for c in cases)]
+    cases = [c for c in HEADLINE if any((c, e) in look for e in estimators.KNOWN)]
+    names = [e for e in estimators.KNOWN if any((c, e) in look for c in cases)]
     if not cases:
         return ""
     out = [
@@ -138,7 +140,7 @@ def headline_tables(results: list[Result]) -> str:
 
 def random_init_table(results: list[Result]) -> str:
     look = _lookup(results)
-    names = [e for e in estimators.ALL if any(k[1] == e for k in look)]
+    names = [e for e in estimators.KNOWN if any(k[1] == e for k in look)]
     rank = {c: i for i, c in enumerate(HEADLINE)}
     cases = sorted(
         {k[0] for k in look},
@@ -207,8 +209,8 @@ def figure_ratio(results: list[Result], path: Path) -> bool:
     import matplotlib.pyplot as plt
 
     look = _lookup(results)
-    cases = [c for c in HEADLINE if any((c, e) in look for e in estimators.ALL)]
-    names = [e for e in estimators.ALL if any((c, e) in look for c in cases)]
+    cases = [c for c in HEADLINE if any((c, e) in look for e in estimators.KNOWN)]
+    names = [e for e in estimators.KNOWN if any((c, e) in look for c in cases)]
     if not cases:
         return False
     fig, ax = plt.subplots(figsize=(8, 4.5))
