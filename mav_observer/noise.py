@@ -23,7 +23,6 @@ lingered would cost its random walk: 0.001 m/s at 10 Hz is 1.35x the bound). No 
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -81,28 +80,28 @@ class VelocityNoise:
         last = self._last
         if last and t_s <= last[-1][0]:
             last.clear()
-        last.append((t_s, list(v_mps)))
+        last.append((t_s, v_mps))
         if len(last) > ORDER + 1:
             del last[0]
         if len(last) < ORDER + 1:
             return
-        ts = [t for t, _ in last]
-        gaps = [b - a for a, b in itertools.pairwise(ts)]
-        if max(gaps) > MAX_INTERVAL_S or max(gaps) > 4.0 * min(gaps):
+        (t0, v0), (t1, v1), (t2, v2), (t3, v3) = last
+        h1, h2, h3 = t1 - t0, t2 - t1, t3 - t2
+        lo, hi = min(h1, h2, h3), max(h1, h2, h3)
+        if hi > MAX_INTERVAL_S or hi > 4.0 * lo:
             return
-        c = []
-        for i, ti in enumerate(ts):
-            prod = 1.0
-            for j, tj in enumerate(ts):
-                if j != i:
-                    prod *= ti - tj
-            c.append(1.0 / prod)
-        c2 = sum(ci * ci for ci in c)
-        n = len(v_mps)
-        d2 = sum(sum(ci * v[k] for ci, (_, v) in zip(c, last, strict=True)) ** 2 for k in range(n))
-        sample = d2 / (c2 * n)
+        # c_i = 1 / prod_{j != i} (t_i - t_j), the third divided difference's weights
+        c0 = -1.0 / (h1 * (h1 + h2) * (h1 + h2 + h3))
+        c1 = 1.0 / (h1 * h2 * (h2 + h3))
+        c2 = -1.0 / ((h1 + h2) * h2 * h3)
+        c3 = 1.0 / ((h1 + h2 + h3) * (h2 + h3) * h3)
+        d2 = 0.0
+        for k in range(len(v3)):
+            d = c0 * v0[k] + c1 * v1[k] + c2 * v2[k] + c3 * v3[k]
+            d2 += d * d
+        sample = d2 / ((c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3) * len(v3))
         cap = max(CLIP * self.sigma_mps**2, CLIP_FLOOR)
-        rho = math.exp(-gaps[-1] / self.memory_s) if self.memory_s > 0.0 else 0.0
+        rho = math.exp(-h3 / self.memory_s) if self.memory_s > 0.0 else 0.0
         self._w = rho * self._w + 1.0
         self._s = rho * self._s + min(sample, cap)
         rho_p = rho**10
@@ -115,7 +114,7 @@ class VelocityNoise:
             "s": self._s,
             "w_prior": self._wp,
             "s_prior": self._sp,
-            "last": [[t, list(v)] for t, v in self._last],
+            "last": [[t, [float(c) for c in v]] for t, v in self._last],
         }
 
     def restore(self, d: Any) -> None:

@@ -90,7 +90,7 @@ INTERPOLATIONS = ("linear", "hold")
 #: The error (m/s, as a white velocity noise) of a velocity interval whose mean comes from
 #: the vehicle's positions (``update_velocity_values``'s ``interval_mean_mps``): GNSS-aided
 #: positions do not accumulate the velocity's noise (measured on the shared real logs with
-#: injected bearings: the velocity's default 0.05 m/s there cost 2x to 10x in error).
+#: injected bearings: a velocity noise of 0.05 m/s there cost 2x to 10x in error).
 CHORD_NOISE_MPS = 0.01
 #: Version of the dictionary written by :meth:`BiasObserver.to_dict`.
 STATE_SCHEMA = 2
@@ -461,7 +461,7 @@ class BiasObserver:
         #: the velocity's white noise, learnt from its samples (``velocity_noise_mps = "auto"``)
         self._vnoise = (
             VelocityNoise(prior_mps=VELOCITY_NOISE_PRIOR_MPS)
-            if cfg.velocity_noise_mps == AUTO
+            if cfg.velocity_noise_mps == AUTO and self._kalman
             else None
         )
 
@@ -1297,7 +1297,7 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
     try:
         raw = k["bank"]
         # states saved before the noise was learnt lack its fields: the prior, nothing counted
-        added = {"noise_alpha", "noise_beta", "outliers", "bearings"}
+        added = {"noise_alpha", "noise_beta", "outliers", "bearings", "inlier_avg"}
         arrays = {
             f.name: np.array(raw[f.name], dtype=float)
             for f in fields(riccati.Bank)
@@ -1312,12 +1312,14 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
         arrays["noise_alpha"] = np.array([1.0])
         arrays["noise_beta"] = np.array([prior])
         arrays["outliers"] = arrays["bearings"] = np.array([0.0])
+        arrays["inlier_avg"] = np.array([1.0])
     f_count = arrays["x"].shape[0] if arrays["x"].ndim == 2 else -1
     shapes = {
         "x": (f_count, n), "a": (f_count, n), "p": (f_count, 2 * n, 2 * n),
         "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
         "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
         "noise_alpha": (1,), "noise_beta": (1,), "outliers": (1,), "bearings": (1,),
+        "inlier_avg": (1,),
     }  # fmt: skip
     for name, shape in shapes.items():
         arr = arrays[name]

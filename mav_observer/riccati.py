@@ -179,11 +179,12 @@ def update_robust(
     # P - K S K^T = P - K (P H^T)^T, symmetrised
     p2 = p - k @ np.swapaxes(pht, -1, -2)
     p2 = 0.5 * (p2 + np.swapaxes(p2, -1, -2))
-    # e = R S^-1 z and H P+ H^T = R - R S^-1 R with R = sig2 / w I (see UpdateResult)
+    # e = R S^-1 z and H P+ H^T = R - R S^-1 R with R = sig2 / w I (see UpdateResult):
+    # e^T e + tr(H P+ H^T) = r (m - r (tr S^-1 - |S^-1 z|^2))
     r_eff = sig2 / weight
     siz = np.einsum("...ij,...j->...i", s_inv, z)
     tr_s_inv = np.trace(s_inv, axis1=-2, axis2=-1)
-    stat = r_eff**2 * np.sum(siz * siz, axis=-1) + m * r_eff - r_eff**2 * tr_s_inv
+    stat = r_eff * (m - r_eff * (tr_s_inv - np.sum(siz * siz, axis=-1)))
     return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat, z)
 
 
@@ -231,6 +232,13 @@ def initial_covariance(
 #: variance learnt is 2 % short).
 NOISE_CLIP = 4.0
 
+
+#: Below this share of bearings within the robust threshold (averaged over the innovation
+#: window) the noise in use is taken to be too small, and every bearing, down-weighted,
+#: counts in learning it; above it those beyond the threshold count as neutral, so that a
+#: tracker's false locks do not inflate it (with them counted, 20 % of bearings 5-30 deg
+#: off inflated a 0.5 deg noise to 1.3 deg in a minute and one run in eight broke down).
+INLIER_SHARE_MIN = 0.5
 
 #: The most one bearing weighs in the running mean of the innovations (a share of the
 #: window): with no cap, the first bearing after a 3 s dropout carried 60 % of a 5 s window,
@@ -315,6 +323,7 @@ class Bank:
     noise_beta: np.ndarray
     outliers: np.ndarray
     bearings: np.ndarray
+    inlier_avg: np.ndarray
 
     @property
     def runs(self) -> int:
@@ -363,7 +372,7 @@ def bank_start(y0: np.ndarray, r0_m: np.ndarray, prm: BankParams) -> Bank:
     return Bank(
         x, a, p, logw, owner, r0, r0[:, None] * y0, zeros.copy(), pp,
         np.full(r_count, float(n - 1)), np.zeros(r_count), none.copy(),
-        alpha0, alpha0 * prm.sigma_rad**2, none.copy(), none.copy(),
+        alpha0, alpha0 * prm.sigma_rad**2, none.copy(), none.copy(), np.ones(r_count),
     )  # fmt: skip
 
 
@@ -418,7 +427,8 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     nis, logdet = out.nis[:f], out.logdet[:f]
     w_prior = np.exp(bank.logw)
     g = prm.outlier_nis
-    if math.isfinite(g):
+    robust = out.weight.min() < 1.0  # a bearing beyond the threshold somewhere
+    if robust:
         # Huber: the loss grows as the square root beyond the threshold
         loss = np.where(nis > g, 2.0 * np.sqrt(g * np.maximum(nis, g)) - g, nis)
         nis_c = np.minimum(nis, g)
@@ -430,10 +440,21 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     alpha = min(NIS_MAX_WEIGHT, h_s / prm.nis_window_s)
     bank.nis_avg = bank.nis_avg + alpha * (mix_nis - bank.nis_avg)
     bank.bearings = bank.bearings + 1
-    w_run = np.bincount(bank.owner, weights=w_prior * out.weight[:f], minlength=runs)
-    bank.outliers = bank.outliers + (w_run < 0.5)
+    if robust:
+        w_run = np.bincount(bank.owner, weights=w_prior * out.weight[:f], minlength=runs)
+        bank.outliers = bank.outliers + (w_run < 0.5)
     if prm.learn_noise:
-        stat = np.bincount(bank.owner, weights=w_prior * out.noise_stat[:f], minlength=runs)
+        # the bearings within the robust threshold say what the noise is; the others count
+        # as neutral (their statistic taken as its expected value), unless most bearings are
+        # beyond it (the noise in use far too small, not outliers)
+        inlier = out.weight[:f] >= 1.0
+        share = np.bincount(bank.owner, weights=w_prior * inlier, minlength=runs)
+        beta_ = min(1.0, max(h_s, 0.0) / prm.nis_window_s)
+        bank.inlier_avg = bank.inlier_avg + beta_ * (share - bank.inlier_avg)
+        use = np.where((bank.inlier_avg >= INLIER_SHARE_MIN)[bank.owner], inlier, True)
+        neutral = m * var[bank.owner]
+        stat_f = np.where(use, out.noise_stat[:f], neutral)
+        stat = np.bincount(bank.owner, weights=w_prior * stat_f, minlength=runs)
         # a bearing says at most NOISE_CLIP times the variance in use: the residuals of a
         # filter still acquiring (its linearisation off) do not inflate the noise, and a
         # noise four times the prior is still learnt within seconds (a factor per bearing)

@@ -686,7 +686,7 @@ def test_a_noise_told_as_a_number_is_used_as_told() -> None:
 def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> None:
     obs = _started_observer()
     d = json.loads(json.dumps(obs.to_dict()))
-    for key in ("noise_alpha", "noise_beta", "outliers", "bearings"):
+    for key in ("noise_alpha", "noise_beta", "outliers", "bearings", "inlier_avg"):
         del d["kalman"]["bank"][key]
     del d["velocity_noise"]
     restored = BiasObserver.from_dict(d)
