@@ -448,13 +448,17 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
         # as neutral (their statistic taken as its expected value), unless most bearings are
         # beyond it (the noise in use far too small, not outliers)
         inlier = out.weight[:f] >= 1.0
-        share = np.bincount(bank.owner, weights=w_prior * inlier, minlength=runs)
+        # one filter per run, in run order (pruned): no sums needed
+        single = f == runs and (runs == 1 or np.array_equal(bank.owner, np.arange(runs)))
+        share = inlier if single else np.bincount(bank.owner, w_prior * inlier, minlength=runs)
         beta_ = min(1.0, max(h_s, 0.0) / prm.nis_window_s)
         bank.inlier_avg = bank.inlier_avg + beta_ * (share - bank.inlier_avg)
-        use = np.where((bank.inlier_avg >= INLIER_SHARE_MIN)[bank.owner], inlier, True)
-        neutral = m * var[bank.owner]
-        stat_f = np.where(use, out.noise_stat[:f], neutral)
-        stat = np.bincount(bank.owner, weights=w_prior * stat_f, minlength=runs)
+        if single and inlier.all():
+            stat = out.noise_stat[:f]
+        else:
+            use = np.where((bank.inlier_avg >= INLIER_SHARE_MIN)[bank.owner], inlier, True)
+            stat_f = np.where(use, out.noise_stat[:f], m * var[bank.owner])
+            stat = np.bincount(bank.owner, weights=w_prior * stat_f, minlength=runs)
         # a bearing says at most NOISE_CLIP times the variance in use: the residuals of a
         # filter still acquiring (its linearisation off) do not inflate the noise, and a
         # noise four times the prior is still learnt within seconds (a factor per bearing)
