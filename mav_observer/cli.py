@@ -161,13 +161,13 @@ def _add_listen_parser(sub: Any) -> None:
 
 
 def _number_or_auto(text: str) -> float | str:
-    """``auto`` or a number, for the noise flags."""
-    if text == "auto":
-        return text
+    """``auto`` or a number, for the noise flags (the settings file's own check)."""
+    from mav_observer.settings import number_or_auto
+
     try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected "auto" or a number, got {text!r}') from None
+        return number_or_auto(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 #: The observer flags of run and replay: ``(flag, settings key, type, help)``. A flag for

@@ -113,8 +113,6 @@ class UpdateResult:
       covariance-matching statistic of the noise variance: its expected value is
       ``(n - 1) sigma^2`` when the model is right (variational-Bayes adaptive filtering,
       Sarkka and Nummenmaa 2009), rad^2.
-    * ``innovation``: ``z`` (..., n - 1), rad (tracking form: the sines of the bearing error
-      in the tangent basis of the estimated bearing).
     """
 
     x: np.ndarray
@@ -124,7 +122,6 @@ class UpdateResult:
     logdet: np.ndarray
     weight: np.ndarray
     noise_stat: np.ndarray
-    innovation: np.ndarray
 
 
 def update_robust(
@@ -185,7 +182,7 @@ def update_robust(
     siz = np.einsum("...ij,...j->...i", s_inv, z)
     tr_s_inv = np.trace(s_inv, axis1=-2, axis2=-1)
     stat = r_eff * (m - r_eff * (tr_s_inv - np.sum(siz * siz, axis=-1)))
-    return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat, z)
+    return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat)
 
 
 def _inv_logdet(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -48,7 +48,7 @@ def _number(lo: float | None = None, *, lo_open: bool = False, hi: float | None 
     return check
 
 
-def _number_or_auto(v: object) -> float | str:
+def number_or_auto(v: object) -> float | str:
     """A noise setting: ``"auto"`` (learnt online) or a number (told)."""
     if v == "auto":
         return "auto"
@@ -232,7 +232,7 @@ def _observer_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
         if f.name == "estimator":
             check = _choice(*ESTIMATORS)
         elif f.name in AUTO_KEYS:
-            check = _number_or_auto
+            check = number_or_auto
         else:
             check = _like(default)
         side = next((e for e, keys in ESTIMATOR_KEYS.items() if f.name in keys), None)

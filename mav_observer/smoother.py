@@ -166,26 +166,26 @@ class _Track:
 class SampleLog:
     """The samples of a replay, for :func:`smooth`: per vehicle its LOCAL_POSITION_NED
     (time, position, velocity) and per target its bearings (time, unit NED), each split into
-    epochs where the vehicle's time goes back (a reboot)."""
+    epochs where the vehicle's autopilot clock restarts (:meth:`new_epoch`)."""
 
     def __init__(self) -> None:
         self._epoch: dict[int, int] = {}
-        self._last_t: dict[int, float] = {}
         self._vehicle: dict[tuple[int, int], _Track] = {}
         self._bearings: dict[tuple[int, str, int], _Track] = {}
 
     def local_position(
         self, sysid: int, t_s: float, pos_ned_m: tuple[float, ...], vel_ned_mps: tuple[float, ...]
     ) -> None:
-        last = self._last_t.get(sysid)
-        if last is not None and t_s < last - 1.0:
-            self._epoch[sysid] = self._epoch.get(sysid, 0) + 1
-        self._last_t[sysid] = t_s
         tr = self._vehicle.setdefault((sysid, self._epoch.get(sysid, 0)), _Track())
         if tr.t_s and t_s <= tr.t_s[-1]:
             return  # a repeated time: keep the first
         tr.t_s.append(t_s)
         tr.values.append([*pos_ned_m, *vel_ned_mps])
+
+    def new_epoch(self, sysid: int) -> None:
+        """The vehicle's autopilot clock restarted (the tracker reset it): what follows is a
+        track of its own."""
+        self._epoch[sysid] = self._epoch.get(sysid, 0) + 1
 
     def bearing(self, sysid: int, target: str, t_s: float, y: list[float]) -> None:
         tr = self._bearings.setdefault((sysid, target, self._epoch.get(sysid, 0)), _Track())

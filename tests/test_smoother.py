@@ -65,11 +65,15 @@ def test_too_little_data_gives_no_estimate_and_says_why() -> None:
 
 
 def test_the_sample_log_splits_where_the_clock_restarts() -> None:
+    """A new epoch (a reboot the tracker detected) starts new tracks; a repeated time is
+    kept once."""
     log = SampleLog()
     for k in range(5):
         log.local_position(1, 100.0 + k, (k, 0.0, 0.0), (1.0, 0.0, 0.0))
         log.bearing(1, "gimbal", 100.0 + k, [1.0, 0.0, 0.0])
-    log.local_position(1, 3.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))  # a reboot
+    log.local_position(1, 104.0, (9.0, 0.0, 0.0), (1.0, 0.0, 0.0))  # repeated: ignored
+    log.new_epoch(1)  # the tracker saw the autopilot reboot
+    log.local_position(1, 3.0, (0.0, 0.0, 0.0), (1.0, 0.0, 0.0))
     log.local_position(1, 4.0, (1.0, 0.0, 0.0), (1.0, 0.0, 0.0))
     log.bearing(1, "gimbal", 4.0, [0.0, 1.0, 0.0])
     assert log.tracks() == [(1, "gimbal", 0), (1, "gimbal", 1)]

@@ -112,6 +112,21 @@ FAST = {"attitude_hz": 50.0, "bearing_hz": 25.0, "position_hz": 10.0}
 TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0}
 B05 = {"bearing_noise_deg": 0.5}
 
+
+def _adaptive(name: str, what: str, **emitter: Any) -> E2ECase:
+    """A case of the noise not told (the default settings): the gimbal figure-8 of
+    gimbal_vehicle_fig8 with the emitter settings ``emitter`` (its noise, its outliers)."""
+    return E2ECase(
+        name,
+        what,
+        "figure8",
+        "gimbal",
+        emitter={**FAST, **emitter},
+        realism=OWN_COMPONENT,
+        yaw_swing_deg=30.0,
+    )
+
+
 CASES: dict[str, E2ECase] = {
     c.name: c
     for c in (
@@ -244,50 +259,33 @@ CASES: dict[str, E2ECase] = {
         # the plain gimbal figure-8 of gimbal_vehicle_fig8 with other noise than the defaults
         # assume, and with gross bearing errors; the CRLB is the clean stream's (outliers not
         # counted)
-        E2ECase(
+        _adaptive(
             "noise_0p2deg",
             "bearing noise 0.2 deg, exact velocity, not told (gimbal, own component, figure-8)",
-            "figure8",
-            "gimbal",
-            emitter={**FAST, "bearing_noise_deg": 0.2},
-            realism=OWN_COMPONENT,
-            yaw_swing_deg=30.0,
+            bearing_noise_deg=0.2,
         ),
-        E2ECase(
+        _adaptive(
             "noise_2deg",
             "bearing noise 2 deg, exact velocity, not told (gimbal, own component, figure-8)",
-            "figure8",
-            "gimbal",
-            emitter={**FAST, "bearing_noise_deg": 2.0},
-            realism=OWN_COMPONENT,
-            yaw_swing_deg=30.0,
+            bearing_noise_deg=2.0,
         ),
-        E2ECase(
+        _adaptive(
             "velocity_white_0p1",
             "bearing noise 0.5 deg, white velocity noise 0.1 m/s, not told (gimbal, figure-8)",
-            "figure8",
-            "gimbal",
-            emitter={**FAST, **B05, "velocity_noise_mps": 0.1},
-            realism=OWN_COMPONENT,
-            yaw_swing_deg=30.0,
+            **B05,
+            velocity_noise_mps=0.1,
         ),
-        E2ECase(
+        _adaptive(
             "outliers_5pct",
             "bearing noise 0.5 deg and 5 % outliers 5-30 deg off (false locks), not told",
-            "figure8",
-            "gimbal",
-            emitter={**FAST, **B05, "outlier_prob": 0.05},
-            realism=OWN_COMPONENT,
-            yaw_swing_deg=30.0,
+            **B05,
+            outlier_prob=0.05,
         ),
-        E2ECase(
+        _adaptive(
             "outliers_20pct",
             "bearing noise 0.5 deg and 20 % outliers 5-30 deg off (false locks), not told",
-            "figure8",
-            "gimbal",
-            emitter={**FAST, **B05, "outlier_prob": 0.2},
-            realism=OWN_COMPONENT,
-            yaw_swing_deg=30.0,
+            **B05,
+            outlier_prob=0.2,
         ),
     )
 }

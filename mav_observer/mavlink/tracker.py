@@ -500,6 +500,8 @@ class Tracker:
             len(veh.targets),
         )
         self._note(veh, f"autopilot_{event}")
+        if self.sample_log is not None:
+            self.sample_log.new_epoch(veh.sysid)
         keep = veh.autopilot_compid
         fresh = _Vehicle(
             veh.sysid, Targets(self.config.observer), autopilot_compid=keep, skipped=veh.skipped
@@ -817,7 +819,8 @@ class Tracker:
             est, new = veh.targets.bearing(target, source, tb, y, veh.velocity)
         except InvalidSampleError as exc:
             raise Skip("refused_bearing", str(exc)) from exc
-        obs = veh.targets.get(target)
+        if obs is None:  # a new target: its observer now exists
+            obs = veh.targets.get(target)
         if obs is not None and obs.reacquisitions > reacq:
             # the bearings stopped agreeing with the estimate (the target moved, the tracker
             # locked onto something else): the estimate starts again from the Riccati observer
