@@ -366,8 +366,8 @@ def test_jittered_dropped_samples_at_different_rates_converge() -> None:
 # -- bad input --------------------------------------------------------------------------
 
 
-def _started_observer() -> BiasObserver:
-    obs = BiasObserver()
+def _started_observer(estimator: str = "riccati") -> BiasObserver:
+    obs = BiasObserver(ObserverConfig(estimator=estimator))
     for ev in generate(scenarios.orbit(duration_s=5.0)).events():
         (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
     return obs
@@ -480,28 +480,46 @@ def test_save_and_restore_continue_bit_identically(estimator: str) -> None:
 
 
 @pytest.mark.parametrize(
-    ("mutate", "match"),
+    ("mutate", "match", "estimator"),
     [
-        (lambda d: d.update(schema=7), "schema 7"),
-        (lambda d: d.pop("m"), "no 'm'"),
-        (lambda d: d.update(xh1=[1.0, "x", 2.0]), "'xh1'"),
-        (lambda d: d.update(ahat=[1.0, math.nan, 2.0]), "'ahat' must be finite"),
-        (lambda d: d["config"].update(k_per_s=-2.0), "config: k_per_s"),
-        (lambda d: d.update(bearings=[[1.0, [0.0, 0.0, 0.0]]]), "'bearings'.*zero length"),
-        (lambda d: d.update(t_c="soon"), "'t_c' must be a finite number"),
-        (lambda d: d.pop("kalman"), "riccati estimator has no 'kalman'"),
-        (lambda d: d["kalman"]["bank"]["p"][0][0].__setitem__(0, math.nan), "'kalman.bank.p'"),
-        (lambda d: d["kalman"]["bank"].pop("logw"), "'kalman' is malformed"),
-        (lambda d: d["kalman"]["bank"].update(noise_alpha=[0.0]), "noise_alpha/noise_beta"),
-        (lambda d: d.update(velocity_noise={"w": 1.0}), "velocity noise state is malformed"),
+        (lambda d: d.update(schema=7), "schema 7", "riccati"),
+        (lambda d: d.pop("m"), "no 'm'", "paper"),
+        (lambda d: d.update(xh1=[1.0, "x", 2.0]), "'xh1'", "paper"),
+        (lambda d: d.update(ahat=[1.0, math.nan, 2.0]), "'ahat' must be finite", "paper"),
+        (lambda d: d["config"].update(k_per_s=-2.0), "config: k_per_s", "riccati"),
+        (
+            lambda d: d.update(bearings=[[1.0, [0.0, 0.0, 0.0]]]),
+            "'bearings'.*zero length",
+            "riccati",
+        ),
+        (lambda d: d.update(t_c="soon"), "'t_c' must be a finite number", "riccati"),
+        (lambda d: d.pop("kalman"), "riccati estimator has no 'kalman'", "riccati"),
+        (
+            lambda d: d["kalman"]["bank"]["p"][0][0].__setitem__(0, math.nan),
+            "'kalman.bank.p'",
+            "riccati",
+        ),
+        (lambda d: d["kalman"]["bank"].pop("logw"), "'kalman' is malformed", "riccati"),
+        (
+            lambda d: d["kalman"]["bank"].update(noise_alpha=[0.0]),
+            "noise_alpha/noise_beta",
+            "riccati",
+        ),
+        (
+            lambda d: d.update(velocity_noise={"w": 1.0}),
+            "velocity noise state is malformed",
+            "riccati",
+        ),
         (
             lambda d: d["kalman"]["bank"].update(owner=[3] * len(d["kalman"]["bank"]["owner"])),
             "foreign owner",
+            "riccati",
         ),
+        (lambda d: d.update(velocity_dt_s=2.0), "'velocity_dt_s' must be in", "riccati"),
     ],
 )
-def test_restoring_a_bad_state_names_the_field(mutate, match: str) -> None:
-    d = json.loads(json.dumps(_started_observer().to_dict()))
+def test_restoring_a_bad_state_names_the_field(mutate, match: str, estimator: str) -> None:
+    d = json.loads(json.dumps(_started_observer(estimator).to_dict()))
     mutate(d)
     with pytest.raises(StateError, match=match):
         BiasObserver.from_dict(d)

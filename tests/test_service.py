@@ -301,5 +301,5 @@ def test_memory_stays_bounded_per_vehicle() -> None:
     veh = svc.tracker.vehicles[1]
     obs = svc.tracker.observer(1, "gimbal")
     assert obs is not None
-    assert len(obs._bearings) < 10 and len(obs._velocities) < 10
+    assert obs.buffered["bearing"] < 10 and obs.buffered["velocity"] < 10
     assert len(veh.attitude._h) <= 128

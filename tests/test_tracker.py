@@ -220,7 +220,7 @@ def test_saved_observers_are_dropped_after_a_reboot_or_a_long_gap() -> None:
         (lambda e: e.update(target=""), r"observers\[0\]\.target"),
         (lambda e: e["vehicle"].update(pos_ned_m=[0.0, 1.0]), r"observers\[0\]\.vehicle"),
         (lambda e: e["observer"].update(t_c=None), r"observers\[0\]\.observer must be a started"),
-        (lambda e: e["observer"].pop("m"), r"observers\[0\]\.observer: .*'m'"),
+        (lambda e: e["observer"].pop("kalman"), r"observers\[0\]\.observer: .*'kalman'"),
     ],
 )
 def test_restoring_bad_entries_names_them(mutate, match: str) -> None:

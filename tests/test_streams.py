@@ -1,0 +1,122 @@
+"""The sample streams: checks on arrival, interpolation, holding, breakpoints, horizon."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mav_observer.errors import InvalidSampleError
+from mav_observer.streams import DEFAULT_VELOCITY_DT_S, MIN_INTERVAL_S, SampleStreams
+
+
+def _streams(*, linear: bool = True, max_buffer: int = 256) -> SampleStreams:
+    return SampleStreams(
+        max_bearing_age_s=2.0, max_velocity_age_s=2.0, linear=linear, max_buffer=max_buffer
+    )
+
+
+def test_a_sample_before_the_previous_one_is_refused_naming_both_times() -> None:
+    s = _streams()
+    s.append("velocity", 1.0, [0.0, 0.0, 0.0], None)
+    with pytest.raises(InvalidSampleError, match=r"velocity t_s=0.5 .* t_s=1.0"):
+        s.append("velocity", 0.5, [0.0, 0.0, 0.0], None)
+    assert len(s.velocities) == 1
+
+
+def test_a_bearing_older_than_the_committed_time_is_refused() -> None:
+    s = _streams()
+    with pytest.raises(InvalidSampleError, match="older than the observer's committed time"):
+        s.append("bearing", 1.0, [1.0, 0.0, 0.0], committed_t_s=2.0)
+    s.append("velocity", 1.0, [0.0, 0.0, 0.0], committed_t_s=2.0)  # a velocity may be late
+    assert s.bearings == [] and len(s.velocities) == 1
+
+
+def test_the_velocity_interval_is_the_latest_one_at_most_a_second() -> None:
+    s = _streams()
+    assert s.velocity_dt_s == DEFAULT_VELOCITY_DT_S
+    s.append("velocity", 0.0, [0.0, 0.0, 0.0], None)
+    s.append("velocity", 0.2, [0.0, 0.0, 0.0], None)
+    assert s.velocity_dt_s == pytest.approx(0.2)
+    s.append("velocity", 5.0, [0.0, 0.0, 0.0], None)
+    assert s.velocity_dt_s == 1.0
+
+
+def test_a_bearing_is_interpolated_along_the_chord_and_held_until_it_expires() -> None:
+    s = _streams()
+    s.append("bearing", 0.0, [1.0, 0.0, 0.0], None)
+    s.append("bearing", 1.0, [0.0, 1.0, 0.0], None)
+    y = s.bearing_at(0.5)
+    assert y == pytest.approx([math.sqrt(0.5), math.sqrt(0.5), 0.0])
+    assert s.bearing_at(2.9) == [0.0, 1.0, 0.0]  # held for max_bearing_age_s
+    assert s.bearing_at(3.1) is None
+    assert s.bearing_at(-0.1) is None
+
+
+def test_hold_interpolation_holds_each_bearing_to_the_next() -> None:
+    s = _streams(linear=False)
+    s.append("bearing", 0.0, [1.0, 0.0, 0.0], None)
+    s.append("bearing", 1.0, [0.0, 1.0, 0.0], None)
+    assert s.bearing_at(0.9) == [1.0, 0.0, 0.0]
+
+
+def test_an_interval_mean_shifts_the_interpolated_velocity_to_the_positions_mean() -> None:
+    s = _streams()
+    s.append("velocity", 0.0, [0.0, 0.0, 0.0], None)
+    s.append("velocity", 1.0, [2.0, 0.0, 0.0], None)
+    assert s.velocity_at(0.5) == pytest.approx([1.0, 0.0, 0.0])
+    assert not s.chord_at(0.5)
+    s.set_interval_mean(1.0, [1.5, 0.0, 0.0])
+    assert s.chord_at(0.5)
+    # the samples' shape (a ramp) shifted by 0.5 so its mean is the positions' 1.5
+    assert s.velocity_at(0.25) == pytest.approx([1.0, 0.0, 0.0])
+    assert s.predicted_displacement(0.0, 1.0) == pytest.approx([1.5, 0.0, 0.0])
+
+
+def test_breakpoints_are_unique_in_order_and_slivers_merge_when_asked() -> None:
+    s = _streams()
+    for t in (0.0, 0.5, 1.0):
+        s.append("velocity", t, [0.0, 0.0, 0.0], None)
+    for t in (0.5, 0.505, 0.995):
+        s.append("bearing", t, [1.0, 0.0, 0.0], None)
+    assert s.breakpoints(0.0, 1.0, 0.0) == [0.0, 0.5, 0.505, 0.995, 1.0]
+    assert s.breakpoints(0.0, 1.0, MIN_INTERVAL_S) == [0.0, 0.5, 1.0]
+    # a bearing's expiry is a breakpoint too
+    assert 2.5 in s.breakpoints(2.0, 3.0, 0.0)
+
+
+def test_the_horizon_is_the_earlier_stream_unless_the_other_is_stale_or_full() -> None:
+    s = _streams(max_buffer=3)
+    s.append("velocity", 0.0, [0.0, 0.0, 0.0], None)
+    s.append("bearing", 1.0, [1.0, 0.0, 0.0], None)
+    s.append("velocity", 2.0, [0.0, 0.0, 0.0], None)
+    assert s.horizon() == 1.0
+    s.append("velocity", 4.0, [0.0, 0.0, 0.0], None)  # the bearing is stale
+    assert s.horizon() == 4.0 and not s.can_wait()
+    t = _streams(max_buffer=3)
+    t.append("bearing", 0.0, [1.0, 0.0, 0.0], None)
+    for k in range(5):
+        t.append("velocity", 0.1 * k, [0.0, 0.0, 0.0], None)
+    assert t.horizon() == pytest.approx(0.4)  # the buffer is full: no more waiting
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(0.0, 10.0), min_size=1, max_size=20),
+    st.floats(0.0, 10.0),
+)
+def test_trim_keeps_the_anchor_and_everything_after_it(times: list[float], t_c: float) -> None:
+    s = _streams()
+    for t in sorted(times):
+        s.append("bearing", t, [1.0, 0.0, 0.0], None)
+        s.append("velocity", t, [0.0, 0.0, 0.0], None)
+    before_b = [t for t, _ in s.bearings]
+    s.trim(t_c)
+    kept = [t for t, _ in s.bearings]
+    assert kept == before_b[len(before_b) - len(kept) :]  # a suffix
+    assert [t for t in before_b if t > t_c] == [t for t in kept if t > t_c]
+    anchors = [t for t in before_b if t <= t_c]
+    if anchors:
+        assert kept[0] == anchors[-1]  # the latest sample at or before t_c is kept
