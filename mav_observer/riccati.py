@@ -264,7 +264,8 @@ class BankParams:
       bearing is down-weighted (:func:`update_robust`), counts in the innovation average as
       ``outlier_nis`` (a few gross errors cannot re-seed the bank; a persistent
       inconsistency, a target that moved, still does: a re-acquisition, counted in
-      ``Bank.reseeds``) and in the hypotheses' likelihood by the Huber loss; a bearing
+      ``Bank.reseeds``) and in the hypotheses' likelihood with a bounded loss (beyond the
+      threshold it favours no hypothesis); a bearing
       weighed less than half is counted in ``Bank.outliers``.
     * ``learn_noise``: learn the bearing noise online (``sigma_rad`` is then the prior):
       an inverse-gamma posterior of ``sigma^2`` per run, updated at every bearing with the
@@ -426,12 +427,17 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     g = prm.outlier_nis
     robust = out.weight.min() < 1.0  # a bearing beyond the threshold somewhere
     if robust:
-        # Huber: the loss grows as the square root beyond the threshold
-        loss = np.where(nis > g, 2.0 * np.sqrt(g * np.maximum(nis, g)) - g, nis)
+        # a bearing's evidence is bounded: beyond the threshold of the best-placed filter it
+        # says nothing about which hypothesis is right (a contaminated Gaussian). Unbounded
+        # (or Huber), one gross error among the first bearings, far off for the distant
+        # hypotheses, pruned them all for the near ones.
+        floor = g + m * np.log(var)[bank.owner]
+        loss = np.minimum(nis + logdet, floor)
         nis_c = np.minimum(nis, g)
     else:
-        loss = nis_c = nis
-    logw = bank.logw - 0.5 * (loss + logdet)
+        loss = nis + logdet
+        nis_c = nis
+    logw = bank.logw - 0.5 * loss
     bank.logw = logw - _per_run_logsumexp(logw, bank.owner, runs)[bank.owner]
     mix_nis = np.bincount(bank.owner, weights=w_prior * nis_c, minlength=runs)
     alpha = min(NIS_MAX_WEIGHT, h_s / prm.nis_window_s)

@@ -279,3 +279,26 @@ def test_update_robust_moves_the_state_little_for_a_gross_error() -> None:
     assert move["r"] < move["o"] < move["p"]
     assert robust.weight[0] < 1e-3 and ok.weight[0] == 1.0
     assert plain.nis[0] == pytest.approx(robust.nis[0])  # the NIS is the nominal one
+
+
+def test_a_gross_error_among_the_first_bearings_prunes_no_hypothesis() -> None:
+    """The bank just started, the second bearing 20 deg off: beyond the robust threshold a
+    bearing is no evidence for one range over another (its loss is bounded), so all seven
+    hypotheses survive, none of their weights changed by a factor e; with an unbounded loss the same
+    bearing prunes the distant ones (one such bearing early in a run left a filter tens of
+    metres off for a minute, 4.3x the bound end to end)."""
+    y0 = np.array([[0.6, 0.0, 0.8]])
+    ang = math.radians(20.0)
+    y_bad = np.array([[0.6 * math.cos(ang), math.sin(ang), 0.8 * math.cos(ang)]])
+    kept = {}
+    for name, gate in (("robust", 13.816), ("plain", math.inf)):
+        prm = riccati.BankParams(sigma_rad=math.radians(1.0), learn_noise=True, outlier_nis=gate)
+        bank = riccati.bank_start(y0, np.array([20.0]), prm)
+        w0 = np.exp(bank.logw)
+        riccati.bank_predict(bank, np.array([[0.1, 0.05, 0.0]]), 0.05, prm)
+        riccati.bank_update(bank, y_bad, 0.05, prm)
+        kept[name] = len(bank.owner)
+        if name == "robust":
+            assert kept[name] == prm.hypotheses
+            assert np.all(np.abs(bank.logw - np.log(w0)) < 1.0)
+    assert kept["plain"] < prm.hypotheses
