@@ -70,12 +70,16 @@ class RiccatiEstimator:
         interval whose displacement comes from the vehicle's positions, which have the
         positions' small error (:data:`CHORD_NOISE_MPS`), not the velocity's."""
         key = (velocity_dt_s, self.velocity_noise_mps())
-        if key != self._prm_key or self._prm is None or self._prm_chord is None:
-            prm = self.config.bank_params(velocity_dt_s, key[1])
-            self._prm = prm
-            self._prm_chord = replace(prm, q_x=min(prm.q_x, CHORD_NOISE_MPS**2 * velocity_dt_s))
+        if key != self._prm_key or self._prm is None:
+            self._prm = self.config.bank_params(velocity_dt_s, key[1])
+            self._prm_chord = None
             self._prm_key = key
-        return self._prm_chord if chord else self._prm
+        if not chord:
+            return self._prm
+        if self._prm_chord is None:
+            prm = self._prm
+            self._prm_chord = replace(prm, q_x=min(prm.q_x, CHORD_NOISE_MPS**2 * velocity_dt_s))
+        return self._prm_chord
 
     # -- the interface ---------------------------------------------------------------
     @property
