@@ -178,7 +178,7 @@ class ObserverConfig:
     mode: str = "biased"
     bearing_noise_deg: float | str = "auto"
     velocity_noise_mps: float | str = "auto"
-    bias_walk_mps_per_sqrt_s: float = 0.0
+    bias_walk_mps_per_sqrt_s: float | str = AUTO
     robust: bool = True
     hypotheses: int = 7
     range_span: float = 16.0
@@ -205,7 +205,7 @@ class ObserverConfig:
             raise ConfigError(f"n must be an integer >= {MIN_DIM}, got {self.n!r}")
         if self.estimator not in ESTIMATORS:
             raise ConfigError(f"estimator must be one of {ESTIMATORS}, got {self.estimator!r}")
-        for name in ("bearing_noise_deg", "velocity_noise_mps"):
+        for name in ("bearing_noise_deg", "velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
             val = getattr(self, name)
             if isinstance(val, str) and val != AUTO:
                 raise ConfigError(f'{name} must be "auto" or a number, got {val!r}')
@@ -216,7 +216,7 @@ class ObserverConfig:
         if not isinstance(self.robust, bool):
             raise ConfigError(f"robust must be true or false, got {self.robust!r}")
         for name in ("velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
-            if name == "velocity_noise_mps" and self.velocity_noise_mps == AUTO:
+            if getattr(self, name) == AUTO:
                 continue
             object.__setattr__(self, name, _positive(name, getattr(self, name), allow_zero=True))
         h = self.hypotheses
@@ -319,13 +319,15 @@ class ObserverConfig:
             )
         learn = self.bearing_noise_deg == AUTO
         prior_deg = BEARING_NOISE_PRIOR_DEG if learn else float(self.bearing_noise_deg)
+        walk = self.bias_walk_mps_per_sqrt_s
         return riccati.BankParams(
             sigma_rad=math.radians(prior_deg),
             learn_noise=learn,
             noise_min_rad=math.radians(BEARING_NOISE_FLOOR_DEG),
             outlier_nis=outlier_nis(self.n - 1) if self.robust else math.inf,
             q_x=velocity_noise_mps**2 * velocity_dt_s,
-            q_a=self.bias_walk_mps_per_sqrt_s**2,
+            q_a=0.0 if walk == AUTO else float(walk) ** 2,
+            learn_walk=walk == AUTO and self.mode == "biased",
             hypotheses=self.hypotheses,
             span=self.range_span,
             bias_std_mps=0.0 if self.mode == "bias_free" else 5.0,
@@ -1301,7 +1303,7 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
         arrays = {
             f.name: np.array(raw[f.name], dtype=float)
             for f in fields(riccati.Bank)
-            if f.name in raw or f.name not in added
+            if f.name in raw or f.name not in added | riccati.BANK_WALK_FIELDS
         }
         t_b = None if k["t_bearing"] is None else float(k["t_bearing"])
         vel_dt = float(k["velocity_dt"])
@@ -1314,12 +1316,14 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
         arrays["outliers"] = arrays["bearings"] = np.array([0.0])
         arrays["inlier_avg"] = np.array([1.0])
     f_count = arrays["x"].shape[0] if arrays["x"].ndim == 2 else -1
+    for name, v in riccati.walk_defaults(1, n).items():  # saved before it was learnt
+        arrays.setdefault(name, v)
     shapes = {
         "x": (f_count, n), "a": (f_count, n), "p": (f_count, 2 * n, 2 * n),
         "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
         "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
         "noise_alpha": (1,), "noise_beta": (1,), "outliers": (1,), "bearings": (1,),
-        "inlier_avg": (1,),
+        "inlier_avg": (1,), **{k: v.shape for k, v in riccati.walk_defaults(1, n).items()},
     }  # fmt: skip
     for name, shape in shapes.items():
         arr = arrays[name]
