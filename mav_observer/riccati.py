@@ -309,7 +309,7 @@ class BankParams:
     walk_factor: float = 4.0
     walk_min: float = 1e-6
     walk_max: float = 1.0
-    walk_up_nats: float = 3.0
+    walk_up_nats: float = 6.0
     walk_down_nats: float = 2.0
     walk_memory_s: float = 60.0
     walk_warmup_s: float = 10.0
@@ -611,7 +611,13 @@ def _walk_step(
     ready = (count == 1) & (bank.age_s > prm.walk_warmup_s)
     on = ready & (bank.walk_on > 0.0)
     rho = math.exp(-max(h_s, 0.0) / prm.walk_memory_s)
-    lead = rho * bank.walk_ll + (ll[g:].reshape(runs, 2) - ll[main][:, None])
+    diff = ll[g:].reshape(runs, 2) - ll[main][:, None]
+    if math.isfinite(g_):
+        # a bearing beyond the robust threshold of any of the three is neutral: a gross
+        # error costs a filter with a wider covariance less, and would push q_a up
+        gross = (nis[main] > g_) | np.any(nis[g:].reshape(runs, 2) > g_, axis=1)
+        diff = np.where(gross[:, None], 0.0, diff)
+    lead = rho * bank.walk_ll + diff
     bank.walk_ll = np.where(on[:, None], lead, 0.0)
     up = on & (lead[:, 1] > prm.walk_up_nats) & (bank.walk_q < prm.walk_max)
     down = on & ~up & (lead[:, 0] > prm.walk_down_nats) & (bank.walk_q > 0.0)

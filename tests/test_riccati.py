@@ -282,7 +282,12 @@ def test_update_robust_moves_the_state_little_for_a_gross_error() -> None:
 
 
 def _walking_bias_run(
-    q_true: float, seed: int, runs: int, duration_s: float = 240.0, dt: float = 0.05
+    q_true: float,
+    seed: int,
+    runs: int,
+    duration_s: float = 240.0,
+    dt: float = 0.05,
+    outliers: float = 0.0,
 ) -> tuple[riccati.Bank, riccati.BankParams, np.ndarray]:
     """Orbit, 0.5 deg bearings (the noise learnt), a bias that is a random walk of intensity
     ``q_true`` (m^2/s^3) on top of the scenario's: the bank learning its walk; returns the
@@ -295,6 +300,8 @@ def _walking_bias_run(
     xt = xs[None] + np.cumsum(walk * dt, axis=1)
     y_true = xt / np.linalg.norm(xt, axis=-1, keepdims=True)
     y = perturb_bearings(y_true.reshape(-1, 3), math.radians(0.5), rng).reshape(runs, -1, 3)
+    gross = rng.random(y.shape[:2]) < outliers  # 10 deg off (a tracker's false lock)
+    y[gross] = perturb_bearings(y[gross], math.radians(10.0), rng)
     prm = riccati.BankParams(
         sigma_rad=math.radians(1.0), learn_noise=True, outlier_nis=13.816, learn_walk=True
     )
@@ -316,6 +323,15 @@ def test_the_bias_walk_is_learnt_and_a_constant_bias_stays_constant() -> None:
     assert 0.3 < nees.mean() < 2.0, nees
     bank, prm, _ = _walking_bias_run(0.0, 32, 2)
     assert np.all(bank.bias_walk(prm) == 0.0)
+
+
+def test_gross_bearing_errors_do_not_make_the_bias_walk() -> None:
+    """10 % of bearings 10 deg off, a constant bias: they count for no probe (a filter with
+    a wider covariance pays less for them), so nothing is learnt."""
+    bank, prm, xt = _walking_bias_run(0.0, 34, 2, duration_s=180.0, outliers=0.1)
+    assert np.all(bank.bias_walk(prm) == 0.0), np.sqrt(bank.bias_walk(prm))
+    x, _, _ = riccati.bank_estimate(bank)
+    assert np.all(np.linalg.norm(x - xt, axis=1) < 0.05 * np.linalg.norm(xt, axis=1))
 
 
 def test_a_told_bias_walk_is_used_as_told_and_the_probes_follow_the_bank() -> None:
