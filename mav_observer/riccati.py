@@ -433,7 +433,7 @@ def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> N
     """Propagate every filter and observer over ``h_s`` s; ``dx_m`` (R, n) is each run's
     integral of ``v`` over the step (m). In place."""
     f = len(bank.owner)  # one call for the filters, the observers and the probes
-    if prm.learn_walk:
+    if prm.learn_walk and bank.walk_on.any():  # the probes only while they run
         q_run = bank.walk_q
         q_a = np.concatenate((q_run[bank.owner], q_run, _walk_levels(q_run, prm).ravel()))
         n = bank.x.shape[-1]
@@ -491,13 +491,14 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
         [var[bank.owner], var],
     )
     g = f + runs
-    if prm.learn_walk:  # and the probes (tracking)
+    probes = prm.learn_walk and bool(bank.walk_on.any())
+    if probes:  # and the probes (tracking)
         xs.append(bank.walk_x.reshape(-1, n))
         as_.append(bank.walk_a.reshape(-1, n))
         ps.append(bank.walk_p.reshape(-1, 2 * n, 2 * n))
         ys.append(np.repeat(y, 2, axis=0))
         vs.append(np.repeat(var, 2))
-    rows = g + (2 * runs if prm.learn_walk else 0)
+    rows = g + (2 * runs if probes else 0)
     tracking = (np.arange(rows) < f) | (np.arange(rows) >= g)
     r_w = np.ones(rows)
     r_w[f:g] = bank.r0
@@ -514,13 +515,14 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     )
     x, a, p = out.x, out.a, out.p
     bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:g], a[:f], a[f:g], p[:f], p[f:g]
-    if prm.learn_walk:
+    if probes:
         bank.walk_x, bank.walk_a = (
             x[g:].reshape(bank.walk_x.shape),
             a[g:].reshape(bank.walk_a.shape),
         )
         bank.walk_p = p[g:].reshape(bank.walk_p.shape)
-        _walk_step(bank, out.nis, out.logdet, f, h_s, prm)
+    if prm.learn_walk:
+        _walk_step(bank, out.nis, out.logdet, f, h_s, prm, probes)
     nis, logdet = out.nis[:f], out.logdet[:f]
     w_prior = np.exp(bank.logw)
     g = prm.outlier_nis
@@ -575,6 +577,10 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
 def _walk_levels(q: np.ndarray, prm: BankParams) -> np.ndarray:
     """The probes' ``q_a`` (R, 2) around ``q`` (R,): one level down (0 below ``walk_min``)
     and one up (at least ``walk_min``, at most ``walk_max``)."""
+    if q.shape == (1,):  # one run (the service): plain floats
+        lo1 = float(q[0]) / prm.walk_factor
+        hi1 = min(max(float(q[0]) * prm.walk_factor, prm.walk_min), prm.walk_max)
+        return np.array([[0.0 if lo1 < prm.walk_min else lo1, hi1]])
     lo = q / prm.walk_factor
     lo = np.where(lo < prm.walk_min, 0.0, lo)
     hi = np.clip(q * prm.walk_factor, prm.walk_min, prm.walk_max)
@@ -582,7 +588,13 @@ def _walk_levels(q: np.ndarray, prm: BankParams) -> np.ndarray:
 
 
 def _walk_step(
-    bank: Bank, nis: np.ndarray, logdet: np.ndarray, f: int, h_s: float, prm: BankParams
+    bank: Bank,
+    nis: np.ndarray,
+    logdet: np.ndarray,
+    f: int,
+    h_s: float,
+    prm: BankParams,
+    probes: bool = True,
 ) -> None:
     """Learn the bias's random walk ``q_a`` by comparing likelihoods (a moving grid of
     three hypotheses): the run's filter (``q_a`` in use) against two probe filters, the
@@ -597,9 +609,28 @@ def _walk_step(
     learnt online absorbs it (covariance matching and Fisher scoring on it were tried:
     they did not move ``q_a``, or moved it anywhere). The probes run only while the run
     is down to one filter, ``prm.walk_warmup_s`` after its seeding. In place; ``nis``,
-    ``logdet`` are the update's rows (filters, observers, probes)."""
+    ``logdet`` are the update's rows (filters, observers, and the probes if ``probes``)."""
     runs = bank.runs
     g = f + runs
+    if runs == 1 and (f != 1 or not bank.age_s[0] > prm.walk_warmup_s):
+        bank.walk_on[0] = 0.0  # one run (the service), not ready: nothing to do
+        return
+    if runs == 1 and probes and bank.walk_on[0] > 0.0:  # the service's case, in floats
+        _walk_step_one(bank, nis.tolist(), logdet.tolist(), h_s, prm)
+        return
+    if not probes:  # none ran on this bearing: start those that are ready
+        count = np.bincount(bank.owner, minlength=runs)
+        ready = (count == 1) & (bank.age_s > prm.walk_warmup_s)
+        if ready.any():
+            main = np.zeros(runs, dtype=int)
+            main[bank.owner] = np.arange(f)
+            idx = main[ready]
+            bank.walk_x[ready] = bank.x[idx][:, None]
+            bank.walk_a[ready] = bank.a[idx][:, None]
+            bank.walk_p[ready] = bank.p[idx][:, None]
+            bank.walk_ll[ready] = 0.0
+        bank.walk_on = ready.astype(float)
+        return
     g_ = prm.outlier_nis
     loss = nis
     if math.isfinite(g_) and np.any(nis > g_):  # Huber, as the bank's weights
@@ -635,6 +666,39 @@ def _walk_step(
         bank.walk_p[start] = bank.p[idx][:, None]
         bank.walk_ll[start] = 0.0
     bank.walk_on = ready.astype(float)
+
+
+def _walk_step_one(
+    bank: Bank, nis: list[float], logdet: list[float], h_s: float, prm: BankParams
+) -> None:
+    """:func:`_walk_step` for one run with one filter whose probes run (rows: the filter,
+    the observer, the two probes), in plain floats (the same arithmetic)."""
+    g_ = prm.outlier_nis
+    if any(nis[i] > g_ for i in (0, 2, 3)):  # a gross error: neutral
+        diff_lo = diff_hi = 0.0
+    else:
+        ll0 = -0.5 * (nis[0] + logdet[0])
+        diff_lo = -0.5 * (nis[2] + logdet[2]) - ll0
+        diff_hi = -0.5 * (nis[3] + logdet[3]) - ll0
+    rho = math.exp(-max(h_s, 0.0) / prm.walk_memory_s)
+    ll = bank.walk_ll
+    lead_lo = rho * float(ll[0, 0]) + diff_lo
+    lead_hi = rho * float(ll[0, 1]) + diff_hi
+    q = float(bank.walk_q[0])
+    k = -1
+    if lead_hi > prm.walk_up_nats and q < prm.walk_max:
+        k = 1
+    elif lead_lo > prm.walk_down_nats and q > 0.0:
+        k = 0
+    if k < 0:
+        ll[0, 0], ll[0, 1] = lead_lo, lead_hi
+        return
+    bank.walk_q[0] = _walk_levels(bank.walk_q, prm)[0, k]
+    bank.x[0], bank.a[0], bank.p[0] = bank.walk_x[0, k], bank.walk_a[0, k], bank.walk_p[0, k]
+    bank.walk_x[0] = bank.x[0]
+    bank.walk_a[0] = bank.a[0]
+    bank.walk_p[0] = bank.p[0]
+    ll[0] = 0.0
 
 
 def _select(bank: Bank, keep: np.ndarray) -> None:
