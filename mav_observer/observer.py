@@ -1323,7 +1323,7 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None, float]:
         "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
         "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
         "noise_alpha": (1,), "noise_beta": (1,), "outliers": (1,), "bearings": (1,),
-        "inlier_avg": (1,), **{k: v.shape for k, v in riccati.walk_defaults(1, n).items()},
+        "inlier_avg": (1,), **{f: v.shape for f, v in riccati.walk_defaults(1, n).items()},
     }  # fmt: skip
     for name, shape in shapes.items():
         arr = arrays[name]
