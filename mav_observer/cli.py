@@ -186,7 +186,12 @@ OBSERVER_FLAGS = (
         _number_or_auto,
         "white velocity noise (m/s), or auto: learnt online (default; riccati)",
     ),
-    ("--bias-walk", "bias_walk_mps_per_sqrt_s", float, "bias random walk (m/s/sqrt s; riccati)"),
+    (
+        "--bias-walk",
+        "bias_walk_mps_per_sqrt_s",
+        _number_or_auto,
+        "bias random walk (m/s/sqrt s; 0: constant), or auto: learnt online (default; riccati)",
+    ),
     ("--initial-range-m", "initial_range_m", float, "first range guess (m)"),
     ("--k", "k_per_s", float, "gain k (1/s; paper)"),
     ("--k-star", "k_star_per_s", float, "gain k* (1/s; paper)"),

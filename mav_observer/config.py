@@ -85,7 +85,8 @@ class ObserverConfig:
     * ``bearing_noise_deg``, ``velocity_noise_mps``, ``bias_walk_mps_per_sqrt_s``
       (riccati): standard deviation of the bearing noise per direction, of each velocity
       component, and the random walk of ``a`` (its standard deviation grows by this per
-      square root of a second; 0 for a constant ``a``).
+      square root of a second; 0 for a constant ``a``). Each ``"auto"`` (the default) or
+      a number: ``"auto"`` learns it online (the bias walk from 0), a number is used as told.
     * ``hypotheses``, ``range_span`` (riccati): the filter bank's initial ranges, spread
       ``range_span`` times either way around the range guess (``initial_range_m``, else
       :data:`DEFAULT_RANGE_GUESS_M`).
@@ -115,7 +116,7 @@ class ObserverConfig:
     mode: str = "biased"
     bearing_noise_deg: float | str = "auto"
     velocity_noise_mps: float | str = "auto"
-    bias_walk_mps_per_sqrt_s: float = 0.0
+    bias_walk_mps_per_sqrt_s: float | str = AUTO
     robust: bool = True
     hypotheses: int = 7
     range_span: float = 16.0
@@ -143,7 +144,7 @@ class ObserverConfig:
         names = estimator_names()
         if self.estimator not in names:
             raise ConfigError(f"estimator must be one of {names}, got {self.estimator!r}")
-        for name in ("bearing_noise_deg", "velocity_noise_mps"):
+        for name in ("bearing_noise_deg", "velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
             val = getattr(self, name)
             if isinstance(val, str) and val != AUTO:
                 raise ConfigError(f'{name} must be "auto" or a number, got {val!r}')
@@ -154,7 +155,7 @@ class ObserverConfig:
         if not isinstance(self.robust, bool):
             raise ConfigError(f"robust must be true or false, got {self.robust!r}")
         for name in ("velocity_noise_mps", "bias_walk_mps_per_sqrt_s"):
-            if name == "velocity_noise_mps" and self.velocity_noise_mps == AUTO:
+            if getattr(self, name) == AUTO:
                 continue
             object.__setattr__(self, name, _positive(name, getattr(self, name), allow_zero=True))
         h = self.hypotheses
@@ -257,13 +258,15 @@ class ObserverConfig:
             )
         learn = self.bearing_noise_deg == AUTO
         prior_deg = BEARING_NOISE_PRIOR_DEG if learn else float(self.bearing_noise_deg)
+        walk = self.bias_walk_mps_per_sqrt_s
         return riccati.BankParams(
             sigma_rad=math.radians(prior_deg),
             learn_noise=learn,
             noise_min_rad=math.radians(BEARING_NOISE_FLOOR_DEG),
             outlier_nis=outlier_nis(self.n - 1) if self.robust else math.inf,
             q_x=velocity_noise_mps**2 * velocity_dt_s,
-            q_a=self.bias_walk_mps_per_sqrt_s**2,
+            q_a=0.0 if walk == AUTO else float(walk) ** 2,
+            learn_walk=walk == AUTO and self.mode == "biased",
             hypotheses=self.hypotheses,
             span=self.range_span,
             bias_std_mps=0.0 if self.mode == "bias_free" else 5.0,

@@ -62,18 +62,25 @@ def predict(
 
     ``q_x`` (m^2/s) and ``q_a`` (m^2/s^3) are the intensities of white noise on ``x'`` (from
     the velocity's noise) and on ``a'`` (a random walk of the bias):
-    ``Q = [[q_x h + q_a h^3/3, q_a h^2/2], [q_a h^2/2, q_a h]]`` per axis. Exact for a
-    constant ``a``; new arrays are returned.
+    ``Q = [[q_x h + q_a h^3/3, q_a h^2/2], [q_a h^2/2, q_a h]]`` per axis (``q_a`` one
+    number, or one per batch element). Exact for a constant ``a``; new arrays are returned.
     """
     h = float(h_s)
     n = x.shape[-1]
     i = np.arange(n)
     f = np.eye(2 * n)
     f[i, i + n] = h
-    q = np.zeros((2 * n, 2 * n))
-    q[i, i] = q_x * h + q_a * h**3 / 3.0
-    q[i, i + n] = q[i + n, i] = q_a * h * h / 2.0
-    q[i + n, i + n] = q_a * h
+    if np.ndim(q_a) == 0:
+        q = np.zeros((2 * n, 2 * n))
+        q[i, i] = q_x * h + q_a * h**3 / 3.0
+        q[i, i + n] = q[i + n, i] = q_a * h * h / 2.0
+        q[i + n, i + n] = q_a * h
+    else:  # one q_a per batch element
+        qa = np.asarray(q_a, dtype=float)[..., None]
+        q = np.zeros((*np.shape(q_a), 2 * n, 2 * n))
+        q[..., i, i] = q_x * h + qa * h**3 / 3.0
+        q[..., i, i + n] = q[..., i + n, i] = qa * h * h / 2.0
+        q[..., i + n, i + n] = qa * h
     return x + dx_m + h * a, a, f @ p @ f.T + q
 
 
@@ -273,6 +280,14 @@ class BankParams:
       the time constant ``noise_memory_s``; the prior weighs as ``noise_prior_dof`` tangent
       directions. The variance used is the posterior's ``beta / alpha``, kept within
       ``[noise_min_rad, noise_max_rad]`` squared.
+    * ``learn_walk``: learn the bias's random walk ``q_a`` online (``q_a`` is then unused;
+      it starts at 0, a constant bias), :func:`_walk_step`: two probe filters per run
+      with ``q_a`` divided and multiplied by ``walk_factor`` (the first level above 0 is
+      ``walk_min``, the most ``walk_max``, m^2/s^3), run beside the run's filter once its
+      bank is down to one filter and ``walk_warmup_s`` after its seeding; their innovations'
+      log-likelihoods against the filter's, summed with forgetting over ``walk_memory_s``,
+      move ``q_a`` one level when a probe leads by ``walk_up_nats`` (up) or
+      ``walk_down_nats`` (down).
     """
 
     sigma_rad: float
@@ -291,6 +306,31 @@ class BankParams:
     noise_prior_dof: float = 20.0
     noise_min_rad: float = 1e-5
     noise_max_rad: float = 0.5
+    learn_walk: bool = False
+    walk_factor: float = 4.0
+    walk_min: float = 1e-6
+    walk_max: float = 1.0
+    walk_up_nats: float = 6.0
+    walk_down_nats: float = 2.0
+    walk_memory_s: float = 60.0
+    walk_warmup_s: float = 10.0
+
+
+#: The fields of :class:`Bank` of the learnt random walk of the bias (a saved state from
+#: before them restores with none learnt, :func:`walk_defaults`).
+BANK_WALK_FIELDS = frozenset({"walk_q", "walk_on", "walk_ll", "walk_x", "walk_a", "walk_p"})
+
+
+def walk_defaults(runs: int, n: int) -> dict[str, np.ndarray]:
+    """The :data:`BANK_WALK_FIELDS` of ``runs`` runs with nothing learnt."""
+    return {
+        "walk_q": np.zeros(runs),
+        "walk_on": np.zeros(runs),
+        "walk_ll": np.zeros((runs, 2)),
+        "walk_x": np.zeros((runs, 2, n)),
+        "walk_a": np.zeros((runs, 2, n)),
+        "walk_p": np.zeros((runs, 2, 2 * n, 2 * n)),
+    }
 
 
 @dataclass
@@ -303,7 +343,10 @@ class Bank:
     ``nis_avg`` (R,), ``age_s`` (R,) since the last seeding, ``reseeds`` (R,); the bearing
     noise: ``noise_alpha``, ``noise_beta`` (R,) of its inverse-gamma posterior (the variance
     in use is ``noise_beta / noise_alpha``, rad^2), ``outliers`` (R,) bearings down-weighted,
-    ``bearings`` (R,) applied."""
+    ``bearings`` (R,) applied; the bias's random walk when learnt (:func:`_walk_step`):
+    ``walk_q`` (R,) its intensity in use (m^2/s^3), ``walk_on`` (R,) 1 while the probes
+    run, ``walk_ll`` (R, 2) their log-likelihood lead over the filter, the probes'
+    ``walk_x``, ``walk_a`` (R, 2, n) and ``walk_p`` (R, 2, 2n, 2n)."""
 
     x: np.ndarray
     a: np.ndarray
@@ -322,10 +365,22 @@ class Bank:
     outliers: np.ndarray
     bearings: np.ndarray
     inlier_avg: np.ndarray
+    walk_q: np.ndarray
+    walk_on: np.ndarray
+    walk_ll: np.ndarray
+    walk_x: np.ndarray
+    walk_a: np.ndarray
+    walk_p: np.ndarray
 
     @property
     def runs(self) -> int:
         return self.r0.shape[0]
+
+    def bias_walk(self, prm: BankParams) -> np.ndarray:
+        """The bias's random-walk intensity ``q_a`` in use per run (R,), m^2/s^3."""
+        if not prm.learn_walk:
+            return np.full(self.runs, prm.q_a)
+        return self.walk_q
 
     def noise_var_rad2(self, prm: BankParams) -> np.ndarray:
         """The bearing noise variance in use per run (R,), rad^2."""
@@ -371,22 +426,44 @@ def bank_start(y0: np.ndarray, r0_m: np.ndarray, prm: BankParams) -> Bank:
         x, a, p, logw, owner, r0, r0[:, None] * y0, zeros.copy(), pp,
         np.full(r_count, float(n - 1)), np.zeros(r_count), none.copy(),
         alpha0, alpha0 * prm.sigma_rad**2, none.copy(), none.copy(), np.ones(r_count),
+        *walk_defaults(r_count, n).values(),
     )  # fmt: skip
 
 
 def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> None:
     """Propagate every filter and observer over ``h_s`` s; ``dx_m`` (R, n) is each run's
     integral of ``v`` over the step (m). In place."""
-    f = len(bank.owner)  # one call for the filters and the observers
-    x, a, p = predict(
-        np.concatenate((bank.x, bank.xp)),
-        np.concatenate((bank.a, bank.ap)),
-        np.concatenate((bank.p, bank.pp)),
-        np.concatenate((dx_m[bank.owner], dx_m)),
-        h_s,
-        prm.q_x,
-        prm.q_a,
-    )
+    f = len(bank.owner)  # one call for the filters, the observers and the probes
+    if prm.learn_walk and bank.walk_on.any():  # the probes only while they run
+        q_run = bank.walk_q
+        q_a = np.concatenate((q_run[bank.owner], q_run, _walk_levels(q_run, prm).ravel()))
+        n = bank.x.shape[-1]
+        x, a, p = predict(
+            np.concatenate((bank.x, bank.xp, bank.walk_x.reshape(-1, n))),
+            np.concatenate((bank.a, bank.ap, bank.walk_a.reshape(-1, n))),
+            np.concatenate((bank.p, bank.pp, bank.walk_p.reshape(-1, 2 * n, 2 * n))),
+            np.concatenate((dx_m[bank.owner], dx_m, np.repeat(dx_m, 2, axis=0))),
+            h_s,
+            prm.q_x,
+            q_a,
+        )
+        g = f + bank.runs
+        bank.walk_x, bank.walk_a = (
+            x[g:].reshape(bank.walk_x.shape),
+            a[g:].reshape(bank.walk_a.shape),
+        )
+        bank.walk_p = p[g:].reshape(bank.walk_p.shape)
+        x, a, p = x[:g], a[:g], p[:g]
+    else:
+        x, a, p = predict(
+            np.concatenate((bank.x, bank.xp)),
+            np.concatenate((bank.a, bank.ap)),
+            np.concatenate((bank.p, bank.pp)),
+            np.concatenate((dx_m[bank.owner], dx_m)),
+            h_s,
+            prm.q_x,
+            prm.q_a,
+        )
     bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:], a[:f], a[f:], p[:f], p[f:]
     bank.age_s = bank.age_s + h_s
 
@@ -406,22 +483,47 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     runs, n = y.shape
     m = n - 1
     f = len(bank.owner)  # one call: the filters (tracking) and the observers (acquisition)
-    tracking = np.arange(f + runs) < f
-    r_w = np.concatenate((np.ones(f), bank.r0))
     var = bank.noise_var_rad2(prm)
+    xs, as_, ps, ys, vs = (
+        [bank.x, bank.xp],
+        [bank.a, bank.ap],
+        [bank.p, bank.pp],
+        [y[bank.owner], y],
+        [var[bank.owner], var],
+    )
+    g = f + runs
+    probes = prm.learn_walk and bool(bank.walk_on.any())
+    if probes:  # and the probes (tracking)
+        xs.append(bank.walk_x.reshape(-1, n))
+        as_.append(bank.walk_a.reshape(-1, n))
+        ps.append(bank.walk_p.reshape(-1, 2 * n, 2 * n))
+        ys.append(np.repeat(y, 2, axis=0))
+        vs.append(np.repeat(var, 2))
+    rows = g + (2 * runs if probes else 0)
+    tracking = (np.arange(rows) < f) | (np.arange(rows) >= g)
+    r_w = np.ones(rows)
+    r_w[f:g] = bank.r0
     out = update_robust(
-        np.concatenate((bank.x, bank.xp)),
-        np.concatenate((bank.a, bank.ap)),
-        np.concatenate((bank.p, bank.pp)),
-        np.concatenate((y[bank.owner], y)),
-        np.concatenate((var[bank.owner], var)),
+        np.concatenate(xs),
+        np.concatenate(as_),
+        np.concatenate(ps),
+        np.concatenate(ys),
+        np.concatenate(vs),
         tracking,
         r_w,
         r_w,
         prm.outlier_nis,
     )
     x, a, p = out.x, out.a, out.p
-    bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:], a[:f], a[f:], p[:f], p[f:]
+    bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:g], a[:f], a[f:g], p[:f], p[f:g]
+    if probes:
+        bank.walk_x, bank.walk_a = (
+            x[g:].reshape(bank.walk_x.shape),
+            a[g:].reshape(bank.walk_a.shape),
+        )
+        bank.walk_p = p[g:].reshape(bank.walk_p.shape)
+    if prm.learn_walk:
+        _walk_step(bank, out.nis, out.logdet, f, h_s, prm, probes)
     nis, logdet = out.nis[:f], out.logdet[:f]
     w_prior = np.exp(bank.logw)
     g = prm.outlier_nis
@@ -476,6 +578,134 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     bad = (bank.nis_avg > prm.nis_gate * m) & (bank.age_s > 2.0 * prm.nis_window_s)
     if bad.any():
         _reseed(bank, bad, y, prm)
+
+
+def _walk_levels(q: np.ndarray, prm: BankParams) -> np.ndarray:
+    """The probes' ``q_a`` (R, 2) around ``q`` (R,): one level down (0 below ``walk_min``)
+    and one up (at least ``walk_min``, at most ``walk_max``)."""
+    if q.shape == (1,):  # one run (the service): plain floats
+        lo1 = float(q[0]) / prm.walk_factor
+        hi1 = min(max(float(q[0]) * prm.walk_factor, prm.walk_min), prm.walk_max)
+        return np.array([[0.0 if lo1 < prm.walk_min else lo1, hi1]])
+    lo = q / prm.walk_factor
+    lo = np.where(lo < prm.walk_min, 0.0, lo)
+    hi = np.clip(q * prm.walk_factor, prm.walk_min, prm.walk_max)
+    return np.stack((lo, hi), axis=-1)
+
+
+def _walk_step(
+    bank: Bank,
+    nis: np.ndarray,
+    logdet: np.ndarray,
+    f: int,
+    h_s: float,
+    prm: BankParams,
+    probes: bool = True,
+) -> None:
+    """Learn the bias's random walk ``q_a`` by comparing likelihoods (a moving grid of
+    three hypotheses): the run's filter (``q_a`` in use) against two probe filters, the
+    same filter with ``q_a`` one level down and one up (:func:`_walk_levels`), on the same
+    bearings. Each bearing adds its innovation's log-likelihood, ``-(nis + log det S) / 2``
+    (a bearing beyond the robust threshold of any of the three counts for none), the
+    differences summed with forgetting
+    (``prm.walk_memory_s``); a probe leading by ``prm.walk_up_nats`` (up) or
+    ``prm.walk_down_nats`` (down) becomes the run's filter and its ``q_a`` the one in use,
+    and both probes start again as copies of it. The likelihood of the whole innovation
+    sequence is what tells a wandering bias (its innovations correlated over time) from
+    bearing noise; the size of single innovations hardly does, and the bearing noise
+    learnt online absorbs it (covariance matching and Fisher scoring on it were tried:
+    they did not move ``q_a``, or moved it anywhere). The probes run only while the run
+    is down to one filter, ``prm.walk_warmup_s`` after its seeding. In place; ``nis``,
+    ``logdet`` are the update's rows (filters, observers, and the probes if ``probes``)."""
+    runs = bank.runs
+    g = f + runs
+    if runs == 1 and (f != 1 or not bank.age_s[0] > prm.walk_warmup_s):
+        bank.walk_on[0] = 0.0  # one run (the service), not ready: nothing to do
+        return
+    if runs == 1 and probes and bank.walk_on[0] > 0.0:  # the service's case, in floats
+        _walk_step_one(bank, nis.tolist(), logdet.tolist(), h_s, prm)
+        return
+    if not probes:  # none ran on this bearing: start those that are ready
+        count = np.bincount(bank.owner, minlength=runs)
+        ready = (count == 1) & (bank.age_s > prm.walk_warmup_s)
+        if ready.any():
+            main = np.zeros(runs, dtype=int)
+            main[bank.owner] = np.arange(f)
+            idx = main[ready]
+            bank.walk_x[ready] = bank.x[idx][:, None]
+            bank.walk_a[ready] = bank.a[idx][:, None]
+            bank.walk_p[ready] = bank.p[idx][:, None]
+            bank.walk_ll[ready] = 0.0
+        bank.walk_on = ready.astype(float)
+        return
+    g_ = prm.outlier_nis
+    loss = nis
+    if math.isfinite(g_) and np.any(nis > g_):  # Huber, as the bank's weights
+        loss = np.where(nis > g_, 2.0 * np.sqrt(g_ * np.maximum(nis, g_)) - g_, nis)
+    ll = -0.5 * (loss + logdet)
+    count = np.bincount(bank.owner, minlength=runs)
+    main = np.zeros(runs, dtype=int)
+    main[bank.owner] = np.arange(f)
+    ready = (count == 1) & (bank.age_s > prm.walk_warmup_s)
+    on = ready & (bank.walk_on > 0.0)
+    rho = math.exp(-max(h_s, 0.0) / prm.walk_memory_s)
+    diff = ll[g:].reshape(runs, 2) - ll[main][:, None]
+    if math.isfinite(g_):
+        # a bearing beyond the robust threshold of any of the three is neutral: a gross
+        # error costs a filter with a wider covariance less, and would push q_a up
+        gross = (nis[main] > g_) | np.any(nis[g:].reshape(runs, 2) > g_, axis=1)
+        diff = np.where(gross[:, None], 0.0, diff)
+    lead = rho * bank.walk_ll + diff
+    bank.walk_ll = np.where(on[:, None], lead, 0.0)
+    up = on & (lead[:, 1] > prm.walk_up_nats) & (bank.walk_q < prm.walk_max)
+    down = on & ~up & (lead[:, 0] > prm.walk_down_nats) & (bank.walk_q > 0.0)
+    levels = _walk_levels(bank.walk_q, prm)
+    for r in np.flatnonzero(up | down):
+        k = 1 if up[r] else 0
+        i = main[r]
+        bank.x[i], bank.a[i], bank.p[i] = bank.walk_x[r, k], bank.walk_a[r, k], bank.walk_p[r, k]
+        bank.walk_q[r] = levels[r, k]
+    start = ready & ((bank.walk_on <= 0.0) | up | down)
+    if start.any():  # the probes (again) copies of the run's filter
+        idx = main[start]
+        bank.walk_x[start] = bank.x[idx][:, None]
+        bank.walk_a[start] = bank.a[idx][:, None]
+        bank.walk_p[start] = bank.p[idx][:, None]
+        bank.walk_ll[start] = 0.0
+    bank.walk_on = ready.astype(float)
+
+
+def _walk_step_one(
+    bank: Bank, nis: list[float], logdet: list[float], h_s: float, prm: BankParams
+) -> None:
+    """:func:`_walk_step` for one run with one filter whose probes run (rows: the filter,
+    the observer, the two probes), in plain floats (the same arithmetic)."""
+    g_ = prm.outlier_nis
+    if any(nis[i] > g_ for i in (0, 2, 3)):  # a gross error: neutral
+        diff_lo = diff_hi = 0.0
+    else:
+        ll0 = -0.5 * (nis[0] + logdet[0])
+        diff_lo = -0.5 * (nis[2] + logdet[2]) - ll0
+        diff_hi = -0.5 * (nis[3] + logdet[3]) - ll0
+    rho = math.exp(-max(h_s, 0.0) / prm.walk_memory_s)
+    ll = bank.walk_ll
+    lead_lo = rho * float(ll[0, 0]) + diff_lo
+    lead_hi = rho * float(ll[0, 1]) + diff_hi
+    q = float(bank.walk_q[0])
+    k = -1
+    if lead_hi > prm.walk_up_nats and q < prm.walk_max:
+        k = 1
+    elif lead_lo > prm.walk_down_nats and q > 0.0:
+        k = 0
+    if k < 0:
+        ll[0, 0], ll[0, 1] = lead_lo, lead_hi
+        return
+    bank.walk_q[0] = _walk_levels(bank.walk_q, prm)[0, k]
+    bank.x[0], bank.a[0], bank.p[0] = bank.walk_x[0, k], bank.walk_a[0, k], bank.walk_p[0, k]
+    bank.walk_x[0] = bank.x[0]
+    bank.walk_a[0] = bank.a[0]
+    bank.walk_p[0] = bank.p[0]
+    ll[0] = 0.0
 
 
 def _select(bank: Bank, keep: np.ndarray) -> None:

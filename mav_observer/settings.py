@@ -167,7 +167,8 @@ OBSERVER_HELP = {
     "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg); auto: learnt online",
     "velocity_noise_mps": "white velocity noise per axis, 1 sigma (m/s); auto: learnt online",
     "robust": "down-weight gross bearing errors (Huber, beyond the 99.9 % NIS quantile)",
-    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant)",
+    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant); "
+    "auto: learnt online from 0",
     "hypotheses": "filters in the bank",
     "range_span": "the bank spans guess/span to guess*span",
     "k_per_s": "gain k (1/s)",
@@ -187,7 +188,7 @@ OBSERVER_HELP = {
     "max_buffer": "most samples of one stream kept waiting for the other",
 }
 #: Observer settings that are learnt online when ``"auto"`` (the default) or told as a number.
-AUTO_KEYS = ("bearing_noise_deg", "velocity_noise_mps")
+AUTO_KEYS = ("bearing_noise_deg", "velocity_noise_mps", "bias_walk_mps_per_sqrt_s")
 #: Observer fields not set from the settings (the dimension; the paper's initial state).
 _OBSERVER_FIXED = ("n", "xh1_0_m", "m_0_s", "zs_0_mps")
 

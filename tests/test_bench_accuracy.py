@@ -78,6 +78,79 @@ def test_crlb_with_velocity_noise_matches_the_covariance_recursion() -> None:
         core.crlb(t, x, 0.0)
 
 
+def _gm_transition(s: float, tau: float) -> np.ndarray:
+    """``expm(A s)`` of one axis of ``[x, c, g]``, ``x' = c + g``, ``g' = -g / tau``."""
+    e = math.exp(-s / tau)
+    return np.array([[1.0, s, tau * (1.0 - e)], [0.0, 1.0, 0.0], [0.0, 0.0, e]])
+
+
+@pytest.mark.parametrize("h", [0.04, 0.1, 5.0])
+def test_gauss_markov_step_is_the_integral_of_the_continuous_model(h: float) -> None:
+    """``Q = int_0^h Phi(u) Qc Phi(u)^T du`` (Simpson on a fine grid) and ``F = Phi(h)``,
+    both in the series branch (small steps) and the closed form."""
+    q_x, std, tau = 0.05**2 * 0.1, 0.1, 60.0
+    f, q = core.gauss_markov_step(h, q_x, std, tau)
+    qc = np.diag([q_x, 0.0, 2.0 * std**2 / tau])
+    u = np.linspace(0.0, h, 2001)
+    vals = np.array([_gm_transition(s, tau) @ qc @ _gm_transition(s, tau).T for s in u])
+    w = np.ones(len(u))
+    w[1:-1:2], w[2:-1:2] = 4.0, 2.0
+    q_ref = np.einsum("k,kij->ij", w, vals) * (u[1] - u[0]) / 3.0
+    np.testing.assert_allclose(f, _gm_transition(h, tau), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(q, q_ref, rtol=1e-7, atol=1e-18)
+
+
+def test_crlb_with_a_gauss_markov_velocity_error_matches_the_covariance_recursion() -> None:
+    """With a Gauss-Markov velocity error the bound is the Kalman covariance recursion of
+    the augmented state ``[x, c, g]`` along the truth (the stationary prior on ``g``); it
+    lies above the constant-bias bound, and a vanishing Gauss-Markov part gives that bound
+    back (the other end-to-end cases keep theirs, :func:`crlb` unchanged for them)."""
+    t, x = _truth("orbit", 20.0)
+    sigma, q_x, prior = math.radians(0.5), 0.05**2 * 0.1, 1e-2
+    std, tau = 0.1, 60.0
+    bound = core.crlb(t, x, sigma, q_x, prior_info=prior, gm_std_mps=std, gm_tau_s=tau)
+    n = x.shape[1]
+    info = _measurement_info(x, sigma)
+    p = np.eye(3 * n) / prior
+    p[2 * n :, 2 * n :] = np.eye(n) * std**2
+    h = 0.05
+    f1 = _gm_transition(h, tau)
+    f = np.kron(f1, np.eye(n))
+    _, q1 = core.gauss_markov_step(h, q_x, std, tau)
+    q = np.kron(q1, np.eye(n))
+    for k in range(len(t)):
+        if k > 0:
+            p = f @ p @ f.T + q
+        jm = np.linalg.inv(p)
+        jm[:n, :n] += info[k]
+        p = np.linalg.inv(jm)
+        if k % 50 == 0 or k == len(t) - 1:
+            assert bound[k] == pytest.approx(math.sqrt(np.trace(p[:n, :n])), rel=1e-6)
+    white = core.crlb(t, x, sigma, q_x, prior_info=prior)
+    assert np.all(bound[100:] > white[100:])
+    tiny = core.crlb(t, x, sigma, q_x, prior_info=prior, gm_std_mps=1e-7, gm_tau_s=tau)
+    np.testing.assert_allclose(tiny[100:], white[100:], rtol=1e-4)
+    assert np.array_equal(core.crlb(t, x, sigma, q_x, prior, 0.0, tau), white)
+    with pytest.raises(ValueError, match="Gauss-Markov"):
+        core.crlb_gauss_markov(t, x, sigma, q_x, std, 0.0)
+
+
+def test_the_end_to_end_bound_counts_the_gauss_markov_velocity_error() -> None:
+    """velocity_coloured's bound has its Gauss-Markov part; every case without one keeps the
+    constant-bias bound it had."""
+    from bench.accuracy import e2e
+
+    for name, case in e2e.CASES.items():
+        noise = case.bound_noise(0.1)
+        assert noise["sigma_rad"] == pytest.approx(math.radians(case.bearing_deg))
+        assert noise["q_x"] == pytest.approx(case.velocity_white_mps**2 * 0.1)
+        if case.realism.get("velocity_gm_std_mps", 0.0) > 0.0:
+            assert (noise["gm_std_mps"], noise["gm_tau_s"]) == (0.1, 60.0), name
+        else:
+            assert set(noise) == {"sigma_rad", "q_x"}, name
+    assert "gm_std_mps" in e2e.CASES["velocity_coloured"].bound_noise(0.1)
+
+
 def test_time_to_stay_below_on_known_curves() -> None:
     t = np.arange(0.0, 10.0 + 1e-9, 0.5)
     rel = np.vstack(

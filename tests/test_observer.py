@@ -711,3 +711,31 @@ def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> 
     nz = restored.noise()
     assert nz is not None and nz.bearing_noise_deg == pytest.approx(BEARING_NOISE_PRIOR_DEG)
     assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)
+
+
+def test_the_bias_walk_is_learnt_unless_told() -> None:
+    """``bias_walk_mps_per_sqrt_s``: "auto" (the default) learns it from 0; a number is used
+    as told (0: a constant bias); never in the bias-free mode, which has no bias."""
+    auto = ObserverConfig().bank_params(0.1)
+    assert auto.learn_walk and auto.q_a == 0.0
+    told = ObserverConfig(bias_walk_mps_per_sqrt_s=0.018).bank_params(0.1)
+    assert not told.learn_walk and told.q_a == pytest.approx(0.018**2)
+    assert not ObserverConfig(bias_walk_mps_per_sqrt_s=0.0).bank_params(0.1).learn_walk
+    assert not ObserverConfig(mode="bias_free").bank_params(0.1).learn_walk
+    with pytest.raises(ConfigError, match="bias_walk"):
+        ObserverConfig(bias_walk_mps_per_sqrt_s="sometimes")
+
+
+def test_a_state_saved_before_the_bias_walk_was_learnt_restores_with_none() -> None:
+    obs = _started_observer()
+    d = json.loads(json.dumps(obs.to_dict()))
+    assert set(d["kalman"]["bank"]) >= {"walk_q", "walk_p"}
+    for key in ("walk_q", "walk_on", "walk_ll", "walk_x", "walk_a", "walk_p"):
+        del d["kalman"]["bank"][key]
+    restored = BiasObserver.from_dict(d)
+    bank = restored.estimator.bank  # type: ignore[attr-defined]
+    assert bank is not None and bank.walk_q[0] == 0.0
+    assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)
+    d["kalman"]["bank"]["walk_x"] = [[1.0, 2.0]]  # a bad shape is refused, naming it
+    with pytest.raises(StateError, match="walk_x"):
+        BiasObserver.from_dict(d)

@@ -302,3 +302,82 @@ def test_a_gross_error_among_the_first_bearings_prunes_no_hypothesis() -> None:
             assert kept[name] == prm.hypotheses
             assert np.all(np.abs(bank.logw - np.log(w0)) < 1.0)
     assert kept["plain"] < prm.hypotheses
+
+
+def _walking_bias_run(
+    q_true: float,
+    seed: int,
+    runs: int,
+    duration_s: float = 240.0,
+    dt: float = 0.05,
+    outliers: float = 0.0,
+) -> tuple[riccati.Bank, riccati.BankParams, np.ndarray]:
+    """Orbit, 0.5 deg bearings (the noise learnt), a bias that is a random walk of intensity
+    ``q_true`` (m^2/s^3) on top of the scenario's: the bank learning its walk; returns the
+    bank, its settings and the final true positions (R, 3)."""
+    rng = np.random.default_rng(seed)
+    sc = scenarios.orbit(duration_s=duration_s)
+    t = np.arange(0.0, duration_s + 1e-9, dt)
+    xs, v = sc.x(t), sc.v(t)
+    walk = np.cumsum(rng.normal(0.0, math.sqrt(q_true * dt), (runs, len(t), 3)), axis=1)
+    xt = xs[None] + np.cumsum(walk * dt, axis=1)
+    y_true = xt / np.linalg.norm(xt, axis=-1, keepdims=True)
+    y = perturb_bearings(y_true.reshape(-1, 3), math.radians(0.5), rng).reshape(runs, -1, 3)
+    gross = rng.random(y.shape[:2]) < outliers  # 10 deg off (a tracker's false lock)
+    y[gross] = perturb_bearings(y[gross], math.radians(10.0), rng)
+    prm = riccati.BankParams(
+        sigma_rad=math.radians(1.0), learn_noise=True, outlier_nis=13.816, learn_walk=True
+    )
+    vv = np.broadcast_to(v, (runs, *v.shape))
+    bank = _bank_run(y, vv, np.full(runs, float(np.linalg.norm(xs[0]))), prm, dt)
+    return bank, prm, xt[:, -1]
+
+
+def test_the_bias_walk_is_learnt_and_a_constant_bias_stays_constant() -> None:
+    """A bias wandering at 0.01 m/s/sqrt(s): the walk learnt within a level (a factor 2 in
+    m/s/sqrt(s)) in every run, the estimate consistent; a constant bias: nothing learnt,
+    ``q_a`` exactly 0 as the paper's model."""
+    bank, prm, xt = _walking_bias_run(1e-4, 31, 4)
+    learnt = np.sqrt(bank.bias_walk(prm))
+    assert np.all((learnt > 0.005) & (learnt < 0.02)), learnt
+    x, _, p = riccati.bank_estimate(bank)
+    err = x - xt
+    nees = np.einsum("ri,rij,rj->r", err, np.linalg.inv(p[:, :3, :3]), err) / 3
+    assert 0.3 < nees.mean() < 2.0, nees
+    bank, prm, _ = _walking_bias_run(0.0, 32, 2)
+    assert np.all(bank.bias_walk(prm) == 0.0)
+
+
+def test_gross_bearing_errors_do_not_make_the_bias_walk() -> None:
+    """10 % of bearings 10 deg off, a constant bias: they count for no probe (a filter with
+    a wider covariance pays less for them), so nothing is learnt."""
+    bank, prm, xt = _walking_bias_run(0.0, 34, 2, duration_s=180.0, outliers=0.1)
+    assert np.all(bank.bias_walk(prm) == 0.0), np.sqrt(bank.bias_walk(prm))
+    x, _, _ = riccati.bank_estimate(bank)
+    assert np.all(np.linalg.norm(x - xt, axis=1) < 0.05 * np.linalg.norm(xt, axis=1))
+
+
+def test_a_told_bias_walk_is_used_as_told_and_the_probes_follow_the_bank() -> None:
+    """``learn_walk`` off: ``q_a`` as told and no probe runs (the same numbers as a bank
+    that never had them); on: the probes are copies of the run's filter when they start."""
+    rng = np.random.default_rng(33)
+    xt, v, y = _orbit_bearings(rng, 2, 30.0, math.radians(0.5))
+    r0 = np.full(2, float(np.linalg.norm(xt[0])))
+    told = riccati.BankParams(sigma_rad=math.radians(0.5), q_a=3e-4)
+    bank = _bank_run(y, v, r0, told, 0.05)
+    assert np.allclose(bank.bias_walk(told), 3e-4)
+    assert not bank.walk_on.any() and not bank.walk_x.any()
+    learn = riccati.BankParams(sigma_rad=math.radians(0.5), learn_walk=True, walk_warmup_s=5.0)
+    bank = riccati.bank_start(y[:, 0], r0, learn)
+    for k in range(1, y.shape[1]):
+        riccati.bank_predict(bank, 0.5 * (v[:, k - 1] + v[:, k]) * 0.05, 0.05, learn)
+        riccati.bank_update(bank, y[:, k], 0.05, learn)
+        started = bank.walk_on > 0.0
+        if started.any() and not np.any(bank.walk_ll[started]):  # the bearing they start at
+            for r in np.flatnonzero(started):
+                i = int(np.flatnonzero(bank.owner == r)[0])
+                assert np.array_equal(bank.walk_x[r, 0], bank.x[i])
+                assert np.array_equal(bank.walk_p[r, 1], bank.p[i])
+    assert bank.walk_on.all()
+    assert np.allclose(riccati._walk_levels(np.array([0.0, 1e-4]), learn),
+                       [[0.0, learn.walk_min], [2.5e-5, 4e-4]])  # fmt: skip

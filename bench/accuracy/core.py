@@ -129,6 +129,8 @@ def crlb(
     sigma_rad: float,
     q_x: float = 0.0,
     prior_info: float = 1e-9,
+    gm_std_mps: float = 0.0,
+    gm_tau_s: float = math.inf,
 ) -> np.ndarray:
     """Posterior Cramér-Rao bound of the position, ``sqrt(trace(J^-1)_xx)`` (m) at every
     sample (T,), for the state ``[x, a]`` with ``x' = v + a + w`` (``w`` white of intensity
@@ -141,13 +143,17 @@ def crlb(
     information on every state component. The predicted information is computed without
     inverting ``J`` (``Q = G q G^T`` with ``G = [I, 0]^T``, Woodbury), so a nearly singular
     ``J`` early on is harmless.
+
+    With ``gm_std_mps > 0`` the velocity error also has a first-order Gauss-Markov part
+    (stationary standard deviation ``gm_std_mps`` per axis, correlation time ``gm_tau_s``),
+    and the bound is :func:`crlb_gauss_markov`'s (the state augmented with it).
     """
     if not sigma_rad > 0.0:
         raise ValueError("the bound needs a bearing noise > 0")
+    if gm_std_mps > 0.0:
+        return crlb_gauss_markov(t, x, sigma_rad, q_x, gm_std_mps, gm_tau_s, prior_info)
     n = x.shape[1]
-    r = np.linalg.norm(x, axis=1)
-    e = tangent_basis(x / r[:, None])  # (T, n, n-1)
-    info = np.einsum("tij,tkj->tik", e, e) / (r[:, None, None] ** 2 * sigma_rad**2)  # (T, n, n)
+    info = _bearing_info(x, sigma_rad)
     j = np.eye(2 * n) * prior_info
     out = np.empty(len(t))
     eye = np.eye(n)
@@ -162,6 +168,85 @@ def crlb(
                 jg = j[:, :n]  # A G
                 m = eye / q + j[:n, :n]
                 j = j - jg @ np.linalg.solve(m, jg.T)
+            j = 0.5 * (j + j.T)
+        j[:n, :n] += info[k]
+        cov = np.linalg.inv(j)
+        out[k] = math.sqrt(max(np.trace(cov[:n, :n]), 0.0))
+    return out
+
+
+def _bearing_info(x: np.ndarray, sigma_rad: float) -> np.ndarray:
+    """The information of a bearing on the position, ``H_k^T H_k / sigma^2`` (T, n, n)."""
+    r = np.linalg.norm(x, axis=1)
+    e = tangent_basis(x / r[:, None])  # (T, n, n-1)
+    return np.einsum("tij,tkj->tik", e, e) / (r[:, None, None] ** 2 * sigma_rad**2)
+
+
+def gauss_markov_step(
+    h_s: float, q_x: float, gm_std_mps: float, gm_tau_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The exact discretisation over ``h_s`` of one axis of ``[x, c, g]`` with
+    ``x' = v + c + g + w`` (``w`` white, ``q_x`` m^2/s), ``c' = 0`` and the Gauss-Markov
+    ``g' = -g / tau + u`` (``u`` white of intensity ``2 std^2 / tau``, so that ``g`` stays at
+    ``std``): ``(F (3, 3), Q (3, 3))``."""
+    h, tau = float(h_s), float(gm_tau_s)
+    em1 = -math.expm1(-h / tau)  # 1 - exp(-h / tau), exact for small steps
+    em2 = -math.expm1(-2.0 * h / tau)  # 1 - exp(-2 h / tau)
+    qg = 2.0 * gm_std_mps**2 / tau
+    # x's share of g over the step, tau (1 - e), and its noise: integrals of the kernel
+    # tau (1 - exp(-u / tau)) (x) and exp(-u / tau) (g) over u in [0, h]
+    u = h / tau
+    if u < 1e-3:  # the series, free of the cancellation of h - 2 tau e1 + tau e2 / 2
+        xx = qg * h**3 / 3.0 * (1.0 - 0.75 * u + 7.0 / 20.0 * u * u)
+        xg = qg * h * h / 2.0 * (1.0 - u + 7.0 / 12.0 * u * u)
+    else:
+        xx = qg * tau * tau * (h - 2.0 * tau * em1 + 0.5 * tau * em2)
+        xg = qg * tau * (tau * em1 - 0.5 * tau * em2)
+    f = np.array([[1.0, h, tau * em1], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0 - em1]])
+    q = np.array([[q_x * h + xx, 0.0, xg], [0.0, 0.0, 0.0], [xg, 0.0, gm_std_mps**2 * em2]])
+    return f, q
+
+
+def crlb_gauss_markov(
+    t: np.ndarray,
+    x: np.ndarray,
+    sigma_rad: float,
+    q_x: float,
+    gm_std_mps: float,
+    gm_tau_s: float,
+    prior_info: float = 1e-9,
+) -> np.ndarray:
+    """The posterior Cramér-Rao bound of the position (Tichavsky, Muravchik and Nehorai 1998)
+    when the velocity error is white (``q_x``) plus a constant ``c`` plus a first-order
+    Gauss-Markov ``g`` (``gm_std_mps``, ``gm_tau_s``): the bias the estimator sees is
+    ``a = c + g(t)``, no longer constant, and the bound of :func:`crlb` (``a`` constant) is
+    out of reach. The state is ``[x, c, g]`` (3n), linear and Gaussian but for the bearings,
+    so the recursion is the information filter along the truth:
+
+    ``J_k = (F J_{k-1}^-1 F^T + Q)^-1 + H_k^T H_k / sigma^2``, ``H_k = [E_k^T / r_k, 0, 0]``
+
+    with ``F``, ``Q`` of :func:`gauss_markov_step` per axis. The prior is ``prior_info``
+    (negligible) on ``x`` and ``c`` and the stationary ``1 / gm_std^2`` on ``g`` (its law is
+    known: a Bayesian bound). The prediction is ``(I + A Q)^-1 A`` with
+    ``A = F^-T J F^-1`` (``A^-1 + Q = A^-1 (I + A Q)``): no inverse of ``J`` or ``Q``.
+    """
+    if not sigma_rad > 0.0:
+        raise ValueError("the bound needs a bearing noise > 0")
+    if not (gm_std_mps > 0.0 and gm_tau_s > 0.0):
+        raise ValueError("the Gauss-Markov part needs a std > 0 and a time constant > 0")
+    n = x.shape[1]
+    d = 3 * n
+    info = _bearing_info(x, sigma_rad)
+    j = np.eye(d) * prior_info
+    j[2 * n :, 2 * n :] = np.eye(n) / gm_std_mps**2
+    out = np.empty(len(t))
+    eye_d, eye_n = np.eye(d), np.eye(n)
+    for k in range(len(t)):
+        if k > 0:
+            f1, q1 = gauss_markov_step(float(t[k] - t[k - 1]), q_x, gm_std_mps, gm_tau_s)
+            finv, q = np.kron(np.linalg.inv(f1), eye_n), np.kron(q1, eye_n)
+            a = finv.T @ j @ finv
+            j = np.linalg.solve(eye_d + a @ q, a)
             j = 0.5 * (j + j.T)
         j[:n, :n] += info[k]
         cov = np.linalg.inv(j)

@@ -227,7 +227,7 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None]:
         arrays = {
             f.name: np.array(raw[f.name], dtype=float)
             for f in fields(riccati.Bank)
-            if f.name in raw or f.name not in added
+            if f.name in raw or f.name not in added | riccati.BANK_WALK_FIELDS
         }
         t_b = None if k["t_bearing"] is None else float(k["t_bearing"])
     except (KeyError, TypeError, ValueError) as exc:
@@ -239,12 +239,15 @@ def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None]:
         arrays["outliers"] = arrays["bearings"] = np.array([0.0])
         arrays["inlier_avg"] = np.array([1.0])
     f_count = arrays["x"].shape[0] if arrays["x"].ndim == 2 else -1
+    walk = riccati.walk_defaults(1, n)  # saved before the bias walk was learnt: none learnt
+    for name, v in walk.items():
+        arrays.setdefault(name, v)
     shapes = {
         "x": (f_count, n), "a": (f_count, n), "p": (f_count, 2 * n, 2 * n),
         "logw": (f_count,), "owner": (f_count,), "r0": (1,), "xp": (1, n), "ap": (1, n),
         "pp": (1, 2 * n, 2 * n), "nis_avg": (1,), "age_s": (1,), "reseeds": (1,),
         "noise_alpha": (1,), "noise_beta": (1,), "outliers": (1,), "bearings": (1,),
-        "inlier_avg": (1,),
+        "inlier_avg": (1,), **{name: v.shape for name, v in walk.items()},
     }  # fmt: skip
     for name, shape in shapes.items():
         arr = arrays[name]
