@@ -190,7 +190,7 @@ OBSERVER_FLAGS = (
         "--bias-walk",
         "bias_walk_mps_per_sqrt_s",
         _number_or_auto,
-        "bias random walk (m/s/sqrt s; 0: constant), or auto: learnt online (default; riccati)",
+        "bias random walk (m/s/sqrt s; 0, the default: constant), or auto: learnt online (riccati)",
     ),
     ("--initial-range-m", "initial_range_m", float, "first range guess (m)"),
     ("--k", "k_per_s", float, "gain k (1/s; paper)"),

@@ -85,8 +85,9 @@ class ObserverConfig:
     * ``bearing_noise_deg``, ``velocity_noise_mps``, ``bias_walk_mps_per_sqrt_s``
       (riccati): standard deviation of the bearing noise per direction, of each velocity
       component, and the random walk of ``a`` (its standard deviation grows by this per
-      square root of a second; 0 for a constant ``a``). Each ``"auto"`` (the default) or
-      a number: ``"auto"`` learns it online (the bias walk from 0), a number is used as told.
+      square root of a second; 0 for a constant ``a``). Each ``"auto"`` or a number:
+      ``"auto"`` learns it online, a number is used as told. The noises default to
+      ``"auto"``; the bias walk to 0 (its ``"auto"`` is opt-in: ``docs/tuning.md``).
     * ``hypotheses``, ``range_span`` (riccati): the filter bank's initial ranges, spread
       ``range_span`` times either way around the range guess (``initial_range_m``, else
       :data:`DEFAULT_RANGE_GUESS_M`).
@@ -116,7 +117,7 @@ class ObserverConfig:
     mode: str = "biased"
     bearing_noise_deg: float | str = "auto"
     velocity_noise_mps: float | str = "auto"
-    bias_walk_mps_per_sqrt_s: float | str = AUTO
+    bias_walk_mps_per_sqrt_s: float | str = 0.0
     robust: bool = True
     hypotheses: int = 7
     range_span: float = 16.0

@@ -167,8 +167,8 @@ OBSERVER_HELP = {
     "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg); auto: learnt online",
     "velocity_noise_mps": "white velocity noise per axis, 1 sigma (m/s); auto: learnt online",
     "robust": "down-weight gross bearing errors (Huber, beyond the 99.9 % NIS quantile)",
-    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant); "
-    "auto: learnt online from 0",
+    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant, the "
+    "default); auto: learnt online from 0 (opt-in, docs/tuning.md)",
     "hypotheses": "filters in the bank",
     "range_span": "the bank spans guess/span to guess*span",
     "k_per_s": "gain k (1/s)",

@@ -714,9 +714,11 @@ def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> 
 
 
 def test_the_bias_walk_is_learnt_unless_told() -> None:
-    """``bias_walk_mps_per_sqrt_s``: "auto" (the default) learns it from 0; a number is used
-    as told (0: a constant bias); never in the bias-free mode, which has no bias."""
-    auto = ObserverConfig().bank_params(0.1)
+    """``bias_walk_mps_per_sqrt_s``: "auto" learns it from 0; a number is used as told (0, the
+    default: a constant bias); never in the bias-free mode, which has no bias."""
+    default = ObserverConfig().bank_params(0.1)
+    assert not default.learn_walk and default.q_a == 0.0
+    auto = ObserverConfig(bias_walk_mps_per_sqrt_s="auto").bank_params(0.1)
     assert auto.learn_walk and auto.q_a == 0.0
     told = ObserverConfig(bias_walk_mps_per_sqrt_s=0.018).bank_params(0.1)
     assert not told.learn_walk and told.q_a == pytest.approx(0.018**2)
