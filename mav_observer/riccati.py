@@ -639,10 +639,7 @@ def _walk_step(
         bank.walk_on = ready.astype(float)
         return
     g_ = prm.outlier_nis
-    loss = nis
-    if math.isfinite(g_) and np.any(nis > g_):  # Huber, as the bank's weights
-        loss = np.where(nis > g_, 2.0 * np.sqrt(g_ * np.maximum(nis, g_)) - g_, nis)
-    ll = -0.5 * (loss + logdet)
+    ll = -0.5 * (nis + logdet)  # a bearing beyond the threshold is made neutral below
     count = np.bincount(bank.owner, minlength=runs)
     main = np.zeros(runs, dtype=int)
     main[bank.owner] = np.arange(f)

@@ -10,7 +10,6 @@ rules are in :mod:`mav_observer.observer`'s docstring. Pure: no I/O, no clock.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 from mav_observer import discrete
 from mav_observer.errors import InvalidSampleError
@@ -274,8 +273,3 @@ class SampleStreams:
 
         a, b = integral(max(t0 - tv, 0.0)), integral(t1 - tv)
         return [out[j] + b[j] - a[j] for j in range(n)]
-
-    # -- persistence ----------------------------------------------------------------
-    @staticmethod
-    def samples_to_list(buf: Sequence[Sample]) -> list[list[object]]:
-        return [[t, list(v)] for t, v in buf]
