@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer import discrete
+from mav_observer import discrete, riccati
 from mav_observer.config import (
     AUTO,
     BEARING_NOISE_FLOOR_DEG,
@@ -422,6 +422,7 @@ class BiasObserver:
         xhat = out.x_m
         a_now = out.a_mps
         dt = 0.0
+        pxx_pred = None
         if started and t > self._t_c:  # type: ignore[operator]
             # beyond the committed state: a prediction, xhat' = v + ahat (exact for the
             # linear velocity, never committed). The bearings since are applied when the
@@ -429,6 +430,22 @@ class BiasObserver:
             dt = t - self._t_c  # type: ignore[operator]
             d = streams.predicted_displacement(self._t_c, t)  # type: ignore[arg-type]
             xhat = [xhat[j] + d[j] + dt * a_now[j] for j in range(n)]
+            ev = streams.extrapolation_var_m2(t)
+            if ev > 0.0 and out.p is not None:
+                # a sparse stream's trend continued: its uncertainty, and the bearing at
+                # this time (if it is one's) corrects the position published
+                pxx_pred = est.position_cov(dt, streams) + ev * np.eye(n)  # type: ignore[operator]
+                tb, yb = streams.bearings[-1]
+                noise = est.noise(streams) if tb == t else None
+                if noise is not None:
+                    x_new, pxx_pred = riccati.position_update(
+                        np.array(xhat),
+                        pxx_pred,
+                        np.array(yb),
+                        math.radians(noise.bearing_noise_deg) ** 2,
+                        outlier_nis(n - 1) if cfg.robust else math.inf,
+                    )
+                    xhat = x_new.tolist()
         rng = math.sqrt(discrete.dot(xhat, xhat))
         b_age = t - streams.bearings[-1][0] if streams.bearings else None
         v_age = t - streams.velocities[-1][0] if streams.velocities else None
@@ -460,7 +477,7 @@ class BiasObserver:
         nis = est.nis() if started else None
         p = out.p
         if p is not None and started:
-            pxx = est.position_cov(dt, streams)
+            pxx = pxx_pred if pxx_pred is not None else est.position_cov(dt, streams)
             x_std = np.sqrt(np.maximum(np.diag(pxx), 0.0))  # type: ignore[arg-type]
             a_std = np.sqrt(np.maximum(np.diag(p[n:, n:]), 0.0))
             u = x_out / rng if rng > 0.0 else x_out
@@ -537,6 +554,7 @@ class BiasObserver:
             "bearings": [[t, list(y)] for t, y in streams.bearings],
             "velocities": [[t, list(v)] for t, v in streams.velocities],
             "velocity_dt_s": streams.velocity_dt_s,
+            "extrapolation": list(streams.extrap),
             "window": self._window.to_dict(),
             "memory": {
                 "status": str(self._memory.status),
@@ -572,6 +590,8 @@ class BiasObserver:
         streams.bearings = _field_samples(d, "bearings", n, unit=True)
         streams.velocities = _field_samples(d, "velocities", n, unit=False)
         streams.velocity_dt_s = _velocity_dt(d, streams.velocity_dt_s)
+        if d.get("extrapolation") is not None:  # (absent from states saved before it)
+            streams.extrap = _extrapolation(d["extrapolation"])
         obs._window = ExcitationWindow.from_dict(n, _field(d, "window", dict))
         mem = _field(d, "memory", dict)
         try:
@@ -600,6 +620,19 @@ class BiasObserver:
             obs._diag = (t_d, e_d)
         obs._est.restore(d, started=t_c is not None)
         return obs
+
+
+def _extrapolation(raw: Any) -> list[float]:
+    """A saved sparse stream's extrapolation sums: four finite numbers >= 0."""
+    try:
+        vals = [float(v) for v in raw]
+    except (TypeError, ValueError) as exc:
+        raise StateError(f"observer state 'extrapolation' is malformed: {raw!r}") from exc
+    if len(vals) != 4 or not all(math.isfinite(v) and v >= 0.0 for v in vals):
+        raise StateError(
+            f"observer state 'extrapolation' must be four finite numbers >= 0, got {raw!r}"
+        )
+    return vals
 
 
 def _velocity_dt(d: dict[str, Any], default: float) -> float:

@@ -192,6 +192,32 @@ def update_robust(
     return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat)
 
 
+def position_update(
+    x_m: np.ndarray, pxx_m2: np.ndarray, y: np.ndarray, sig2_rad2: float, outlier_nis: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """A bearing ``y`` (unit, n) applied to a predicted position ``x_m`` (n, m) of covariance
+    ``pxx_m2`` (n, n, m^2) alone, in tracking form with the noise variance ``sig2_rad2``:
+    the updated position and covariance. A bearing whose ``nis`` exceeds ``outlier_nis``
+    is weighted as :func:`update_robust` does. For an estimate published beyond the
+    committed state (not committed: the bearing is applied to the state when the velocity
+    around it is known)."""
+    n = len(x_m)
+    p = np.zeros((1, 2 * n, 2 * n))
+    p[0, :n, :n] = pxx_m2
+    out = update_robust(
+        x_m[None, :],
+        np.zeros((1, n)),
+        p,
+        y[None, :],
+        sig2_rad2,
+        True,
+        1.0,
+        1.0,
+        outlier_nis,
+    )
+    return out.x[0], out.p[0, :n, :n]
+
+
 def _inv_logdet(s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Inverse and log-determinant of symmetric positive definite ``s`` (..., m, m); closed
     form for m = 1 and 2 (n = 2 and 3), numpy above."""

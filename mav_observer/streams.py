@@ -23,6 +23,13 @@ MIN_INTERVAL_S = 0.01
 #: The velocity's sample interval (s) assumed before two samples have arrived.
 DEFAULT_VELOCITY_DT_S = 0.05
 
+#: The prior of a sparse stream's extrapolation error (m/s^2 per axis: the velocity's drift
+#: from its latest trend per second), and how many intervals it weighs.
+EXTRAPOLATION_PRIOR_MPS2 = 1.0
+EXTRAPOLATION_PRIOR_WEIGHT = 3.0
+#: The forgetting time constant (s) of the extrapolation error learnt.
+EXTRAPOLATION_MEMORY_S = 60.0
+
 #: ``(t_s, vector)``
 Sample = tuple[float, list[float]]
 
@@ -76,6 +83,11 @@ class SampleStreams:
         self.vel_mean: dict[float, list[float]] = {}
         #: the velocity's latest sample interval (s, at most 1)
         self.velocity_dt_s = DEFAULT_VELOCITY_DT_S
+        #: a sparse stream's extrapolation error learnt (:meth:`extrapolation_var_m2`): the
+        #: forgetting sums of the weights and of the squared drift rates ((m/s^2)^2), of
+        #: the samples and of the prior (which fades ten times faster)
+        w0 = EXTRAPOLATION_PRIOR_WEIGHT
+        self.extrap = [0.0, 0.0, w0, w0 * EXTRAPOLATION_PRIOR_MPS2**2]
 
     # -- input ----------------------------------------------------------------------
     def append(self, kind: str, t_s: float, vec: list[float], committed_t_s: float | None) -> None:
@@ -106,7 +118,54 @@ class SampleStreams:
         """The mean velocity (m/s) over the interval ending at the velocity sample ``t_s``."""
         buf = self.velocities
         if len(buf) >= 2 and buf[-2][0] < t_s:
+            if len(buf) >= 3 and buf[-2][0] in self.vel_mean and buf[-1][0] == t_s:
+                self._learn_extrapolation(t_s, mean_mps)
             self.vel_mean[t_s] = list(mean_mps)
+
+    def _learn_extrapolation(self, t_s: float, mean_mps: list[float]) -> None:
+        """Score the prediction the stream gave before the sample at ``t_s`` arrived (its
+        latest trend continued, :meth:`predicted_displacement`) against the interval's mean
+        ``mean_mps`` (m/s) now known, as a drift rate ``alpha`` of the velocity from its
+        trend (the displacement off by ``alpha s^2 / 2`` after ``s``)."""
+        (tp, vp), (tv, vl) = self.velocities[-3], self.velocities[-2]
+        s = t_s - tv
+        v_end, slope, iv = _trend(tp, vp, tv, vl, self.vel_mean[tv])
+        ramp = 0.5 * s * s if s <= iv else 0.5 * iv * iv + iv * (s - iv)
+        n = len(vl)
+        err2 = 0.0
+        for j in range(n):
+            e = s * v_end[j] + ramp * slope[j] - s * mean_mps[j]
+            err2 += e * e
+        sample = 4.0 * err2 / (n * s**4)
+        rho = math.exp(-s / EXTRAPOLATION_MEMORY_S)
+        w, ss, wp, sp = self.extrap
+        rho_p = rho**10
+        self.extrap = [rho * w + 1.0, rho * ss + sample, rho_p * wp, rho_p * sp]
+
+    @property
+    def extrapolation_mps2(self) -> float:
+        """A sparse stream's drift rate from its latest trend learnt (m/s^2 per axis)."""
+        w, s, wp, sp = self.extrap
+        return math.sqrt((s + sp) / (w + wp))
+
+    def extrapolation_var_m2(self, t: float) -> float:
+        """The variance (m^2 per axis) of the displacement predicted to ``t`` beyond the
+        latest velocity sample of a sparse stream (its latest interval's mean known from the
+        positions, :meth:`predicted_displacement`): ``(alpha s^2 / 2)^2`` after ``s``, with
+        ``alpha`` learnt from how far each interval's mean was from the prediction before
+        it. 0 for a dense stream or at or before the latest sample (there the velocity
+        noise's share is the estimator's).
+
+        A 1 Hz stream braking from 9 m/s to 4.6 m/s put the prediction 0.9 s past its
+        latest sample 1.9 m off (the shared log ``bad_zeroholes``): the uncertainty says so,
+        and the bearing at that time corrects it (``BiasObserver``)."""
+        if not self.vel_mean or not self.velocities:
+            return 0.0
+        tv = self.velocities[-1][0]
+        if t <= tv or tv not in self.vel_mean:
+            return 0.0
+        s = t - tv
+        return 0.25 * self.extrapolation_mps2**2 * s**4
 
     def keep_latest(self) -> None:
         """Before the start only the latest sample of each stream matters."""
@@ -232,6 +291,12 @@ class SampleStreams:
                 return lerp(p, q, t)
         return p[1]
 
+    @property
+    def sparse(self) -> bool:
+        """True when the latest velocity interval's mean came from the positions (a sparse
+        stream: a prediction past it continues its trend, :meth:`extrapolation_var_m2`)."""
+        return bool(self.vel_mean) and self.velocities[-1][0] in self.vel_mean
+
     def chord_at(self, t: float) -> bool:
         """True if the velocity at ``t`` is an interval's mean from the positions."""
         if not self.vel_mean:
@@ -259,13 +324,7 @@ class SampleStreams:
             v = self.velocity_at(t0 + 0.5 * h)
             out = [h * v[j] for j in range(n)]
         tp, vp = self.velocities[-2]
-        vl = self.velocities[-1][1]
-        iv = tv - tp
-        mean = self.vel_mean[tv]
-        # the model at the latest sample (the samples' shape shifted to the positions' mean),
-        # and its slope
-        v_end = [vl[j] + mean[j] - 0.5 * (vp[j] + vl[j]) for j in range(n)]
-        slope = [(vl[j] - vp[j]) / iv for j in range(n)]
+        v_end, slope, iv = _trend(tp, vp, tv, self.velocities[-1][1], self.vel_mean[tv])
 
         def integral(s: float) -> list[float]:  # of v_end + slope * min(s', iv), 0..s
             ramp = 0.5 * s * s if s <= iv else 0.5 * iv * iv + iv * (s - iv)
@@ -273,3 +332,16 @@ class SampleStreams:
 
         a, b = integral(max(t0 - tv, 0.0)), integral(t1 - tv)
         return [out[j] + b[j] - a[j] for j in range(n)]
+
+
+def _trend(
+    tp: float, vp: list[float], tv: float, vl: list[float], mean: list[float]
+) -> tuple[list[float], list[float], float]:
+    """A sparse stream's trend at its latest sample ``(tv, vl)`` after ``(tp, vp)`` with the
+    interval's mean ``mean`` from the positions: the model's velocity at ``tv`` (the samples'
+    shape shifted to the mean), its slope (m/s^2) and the interval (s)."""
+    iv = tv - tp
+    n = len(vl)
+    v_end = [vl[j] + mean[j] - 0.5 * (vp[j] + vl[j]) for j in range(n)]
+    slope = [(vl[j] - vp[j]) / iv for j in range(n)]
+    return v_end, slope, iv

@@ -493,6 +493,11 @@ def test_save_and_restore_continue_bit_identically(estimator: str) -> None:
             "riccati",
         ),
         (lambda d: d.update(t_c="soon"), "'t_c' must be a finite number", "riccati"),
+        (
+            lambda d: d.update(extrapolation=[1.0, -1.0, 0.0, 0.0]),
+            "'extrapolation' must be four finite numbers",
+            "riccati",
+        ),
         (lambda d: d.pop("kalman"), "riccati estimator has no 'kalman'", "riccati"),
         (
             lambda d: d["kalman"]["bank"]["p"][0][0].__setitem__(0, math.nan),
@@ -662,6 +667,48 @@ def test_an_interval_mean_velocity_makes_the_prediction_exact(estimator: str) ->
     )
 
 
+def test_a_sparse_stream_of_a_vehicle_changing_speed_the_bearing_corrects_the_estimate() -> None:
+    """1 Hz velocity with each interval's mean from the positions, 10 Hz bearings, a vehicle
+    turning and changing its speed by up to 4 m/s^2 every second (stop and go). The estimate
+    published between two velocity samples continues the latest trend; the bearing at its
+    time corrects it, and its stated uncertainty (the trend's miss, learnt) covers the
+    error."""
+    rng = np.random.default_rng(5)
+    target = np.array([40.0, 10.0, 5.0])
+    dt = 0.001
+    n_s = 120
+    acc = rng.uniform(-4.0, 4.0, n_s)
+    ts = np.arange(0.0, n_s + dt / 2, dt)
+    speed = np.empty(len(ts))
+    sp = 6.0
+    for i, t in enumerate(ts):
+        speed[i] = sp
+        sp = min(max(sp + acc[min(int(t), n_s - 1)] * dt, 2.0), 10.0)
+    u = np.column_stack([speed * np.cos(0.3 * ts), speed * np.sin(0.3 * ts), np.zeros(len(ts))])
+    p = np.concatenate([[np.zeros(3)], np.cumsum(0.5 * (u[1:] + u[:-1]) * dt, axis=0)])
+    obs = BiasObserver(ObserverConfig(initial_range_m=30.0))
+    k_v, k_b = round(1.0 / dt), round(0.1 / dt)
+    corrected, uncorrected, z2 = [], [], []
+    for i in range(0, len(ts), k_b):
+        t = float(ts[i])
+        if i % k_v == 0:
+            mean = None if i == 0 else (-(p[i] - p[i - k_v])).tolist()
+            obs.update_velocity_values(t, (-u[i]).tolist(), interval_mean_mps=mean)
+        x_true = target - p[i]
+        y = x_true / np.linalg.norm(x_true) + rng.normal(0.0, math.radians(0.2), 3)
+        est = obs.update_bearing_values(t, (y / np.linalg.norm(y)).tolist())
+        if t >= 60.0 and (t % 1.0) >= 0.45:  # the second half of an interval
+            corrected.append(np.linalg.norm(est.x_m - x_true))
+            z2.append(np.mean(((est.x_m - x_true) / est.x_std_m) ** 2))
+            plain = obs.predict(t + 1e-6)  # the same prediction, no bearing at its time
+            uncorrected.append(np.linalg.norm(plain.x_m - x_true))
+    rms_c = math.sqrt(float(np.mean(np.square(corrected))))
+    rms_u = math.sqrt(float(np.mean(np.square(uncorrected))))
+    assert rms_u > 0.3  # the trend does miss
+    assert rms_c < 0.8 * rms_u  # measured 0.60 m against 0.85 m
+    assert 0.3 < float(np.mean(z2)) < 3.0  # measured 1.03 per axis
+
+
 # -- noise learnt online ------------------------------------------------------------------
 
 
@@ -711,6 +758,25 @@ def test_a_state_saved_before_the_noise_was_learnt_restores_with_the_prior() -> 
     nz = restored.noise()
     assert nz is not None and nz.bearing_noise_deg == pytest.approx(BEARING_NOISE_PRIOR_DEG)
     assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)
+
+
+def test_a_sparse_streams_extrapolation_is_saved_and_old_states_restore_with_the_prior() -> None:
+    obs = BiasObserver(ObserverConfig(initial_range_m=10.0))
+    obs.update_bearing_values(0.0, [0.6, 0.8, 0.0])
+    v = [1.0, 0.0, 0.0]
+    for k in range(6):  # the trend misses by 2 m/s^2 each second
+        v = [v[0] + (2.0 if k % 2 else -2.0), 0.0, 0.0]
+        obs.update_velocity_values(float(k), v, interval_mean_mps=None if k == 0 else v)
+        obs.update_bearing_values(float(k) + 0.5, [0.6, 0.8, 0.0])
+    d = json.loads(json.dumps(obs.to_dict()))
+    restored = BiasObserver.from_dict(d)
+    assert restored.to_dict()["extrapolation"] == d["extrapolation"]
+    assert d["extrapolation"][0] > 0.0  # intervals scored
+    del d["extrapolation"]
+    old = BiasObserver.from_dict(d)
+    assert (
+        old.to_dict()["extrapolation"] == BiasObserver(ObserverConfig()).to_dict()["extrapolation"]
+    )
 
 
 def test_the_bias_walk_is_learnt_unless_told() -> None:

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mav_observer import riccati
+from mav_observer.config import outlier_nis
 from sim import scenarios
 from sim.stream import perturb_bearings
 
@@ -381,3 +382,28 @@ def test_a_told_bias_walk_is_used_as_told_and_the_probes_follow_the_bank() -> No
     assert bank.walk_on.all()
     assert np.allclose(riccati._walk_levels(np.array([0.0, 1e-4]), learn),
                        [[0.0, learn.walk_min], [2.5e-5, 4e-4]])  # fmt: skip
+
+
+def test_a_bearing_applied_to_a_position_alone_moves_it_across_the_bearing_only() -> None:
+    """``position_update``: a position 1 m off across the bearing, uncertain by 1 m per axis,
+    a bearing of 0.1 deg at 20 m: the position moves onto the bearing (the cross error falls
+    from 1 m to under 5 cm), the along-bearing component and its variance do not move; a
+    gross error with a robust threshold barely pulls."""
+    x = np.array([20.0, 1.0, 0.0])  # the truth is [20, 0, 0]
+    y = np.array([1.0, 0.0, 0.0])
+    pxx = np.eye(3)
+    sig2 = math.radians(0.1) ** 2
+    x2, p2 = riccati.position_update(x, pxx, y, sig2, math.inf)
+    assert abs(x2[1]) < 0.05 and abs(x2[2]) < 1e-12
+    # (the along-bearing component moves only through the linearisation at the estimate)
+    assert abs(x2[0] - 20.0) < 0.06
+    assert p2[1, 1] < 0.01 and p2[0, 0] > 0.99
+    np.testing.assert_allclose(p2, p2.T)
+    # a position known to 10 cm and a bearing 17 deg off: the robust weight keeps it put,
+    # the plain update does not
+    x_t, tight = np.array([20.0, 0.0, 0.0]), 0.01 * np.eye(3)
+    far = np.array([math.cos(0.3), math.sin(0.3), 0.0])
+    x3, _ = riccati.position_update(x_t, tight, far, sig2, outlier_nis(2))
+    assert np.linalg.norm(x3 - x_t) < 0.05
+    x4, _ = riccati.position_update(x_t, tight, far, sig2, math.inf)
+    assert np.linalg.norm(x4 - x_t) > 1.0

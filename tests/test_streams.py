@@ -75,6 +75,45 @@ def test_an_interval_mean_shifts_the_interpolated_velocity_to_the_positions_mean
     assert s.predicted_displacement(0.0, 1.0) == pytest.approx([1.5, 0.0, 0.0])
 
 
+def _sparse(accel_mps2: list[float], dt_s: float = 1.0) -> SampleStreams:
+    """A 1-axis sparse stream (every interval's mean known) whose acceleration over each
+    interval is ``accel_mps2[k]`` (velocity samples and means exact)."""
+    s = _streams()
+    v, t = 5.0, 0.0
+    s.append("velocity", t, [v], None)
+    for acc in accel_mps2:
+        v1 = v + acc * dt_s
+        t += dt_s
+        s.append("velocity", t, [v1], None)
+        s.set_interval_mean(t, [0.5 * (v + v1)])
+        v = v1
+    return s
+
+
+def test_a_dense_stream_has_no_extrapolation_variance() -> None:
+    s = _streams()
+    for k in range(5):
+        s.append("velocity", 0.1 * k, [1.0, 0.0, 0.0], None)
+    assert not s.sparse
+    assert s.extrapolation_var_m2(1.0) == 0.0
+
+
+def test_a_sparse_stream_learns_how_far_its_trend_misses_and_the_prior_fades() -> None:
+    """Alternate braking and holding (+-4 m/s^2 changes of acceleration each second): each
+    interval's trend, continued, misses the next one's displacement by |d accel| / 2 * 1 s^2,
+    a drift rate of 4 m/s^2 from the trend; a steady acceleration misses nothing."""
+    braking = _sparse([-4.0, 0.0] * 150)
+    assert braking.sparse
+    assert braking.extrapolation_mps2 == pytest.approx(4.0, rel=0.01)
+    tv = braking.velocities[-1][0]
+    assert braking.extrapolation_var_m2(tv) == 0.0  # at the latest sample: nothing predicted
+    # (alpha s^2 / 2)^2 after s
+    assert braking.extrapolation_var_m2(tv + 0.5) == pytest.approx((4.0 * 0.25 / 2) ** 2, rel=0.02)
+    steady = _sparse([1.0] * 300)
+    # the prior (1 m/s^2) is gone after five minutes of exact trends
+    assert steady.extrapolation_mps2 < 1e-3
+
+
 def test_breakpoints_are_unique_in_order_and_slivers_merge_when_asked() -> None:
     s = _streams()
     for t in (0.0, 0.5, 1.0):

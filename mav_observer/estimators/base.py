@@ -45,6 +45,9 @@ class Inputs(Protocol):
 
     def chord_at(self, t: float) -> bool: ...
 
+    @property
+    def sparse(self) -> bool: ...
+
 
 @dataclass(frozen=True)
 class Output:
