@@ -192,6 +192,13 @@ OBSERVER_FLAGS = (
         _number_or_auto,
         "bias random walk (m/s/sqrt s; 0, the default: constant), or auto: learnt online (riccati)",
     ),
+    (
+        "--bearing-latency-s",
+        "bearing_latency_s",
+        _number_or_auto,
+        "how long the bearings trail the line of sight (s), or auto: learnt online (default; "
+        "riccati)",
+    ),
     ("--initial-range-m", "initial_range_m", float, "first range guess (m)"),
     ("--k", "k_per_s", float, "gain k (1/s; paper)"),
     ("--k-star", "k_star_per_s", float, "gain k* (1/s; paper)"),

@@ -49,6 +49,8 @@ BEARING_NOISE_PRIOR_DEG = 1.0
 BEARING_NOISE_FLOOR_DEG = 0.1
 #: The prior of a learnt velocity noise (m/s per axis; :mod:`mav_observer.noise`).
 VELOCITY_NOISE_PRIOR_MPS = 0.05
+#: The largest bearing latency (s) told or learnt (:mod:`mav_observer.latency`).
+MAX_BEARING_LATENCY_S = 0.5
 #: The Huber threshold of a bearing: the 99.9 % quantile of the NIS (chi-square with
 #: ``n - 1`` degrees of freedom), by dimension of the tangent space.
 _CHI2_999 = {1: 10.828, 2: 13.816, 3: 16.266, 4: 18.467}
@@ -88,6 +90,10 @@ class ObserverConfig:
       square root of a second; 0 for a constant ``a``). Each ``"auto"`` or a number:
       ``"auto"`` learns it online, a number is used as told. The noises default to
       ``"auto"``; the bias walk to 0 (its ``"auto"`` is opt-in: ``docs/tuning.md``).
+    * ``bearing_latency_s`` (riccati): how long (s) the bearings trail the line of sight
+      (a gimbal's tracking lag, a timestamp taken late); ``"auto"`` (default) learns it
+      online (:mod:`mav_observer.latency`), a number within +-0.5 s is used as told (0:
+      none).
     * ``hypotheses``, ``range_span`` (riccati): the filter bank's initial ranges, spread
       ``range_span`` times either way around the range guess (``initial_range_m``, else
       :data:`DEFAULT_RANGE_GUESS_M`).
@@ -118,6 +124,7 @@ class ObserverConfig:
     bearing_noise_deg: float | str = "auto"
     velocity_noise_mps: float | str = "auto"
     bias_walk_mps_per_sqrt_s: float | str = 0.0
+    bearing_latency_s: float | str = "auto"
     robust: bool = True
     hypotheses: int = 7
     range_span: float = 16.0
@@ -159,6 +166,17 @@ class ObserverConfig:
             if getattr(self, name) == AUTO:
                 continue
             object.__setattr__(self, name, _positive(name, getattr(self, name), allow_zero=True))
+        lat = self.bearing_latency_s
+        if isinstance(lat, str) and lat != AUTO:
+            raise ConfigError(f'bearing_latency_s must be "auto" or a number, got {lat!r}')
+        if lat != AUTO:
+            if isinstance(lat, bool) or not isinstance(lat, (int, float)):
+                raise ConfigError(f'bearing_latency_s must be "auto" or a number, got {lat!r}')
+            if not (math.isfinite(lat) and abs(lat) <= MAX_BEARING_LATENCY_S):
+                raise ConfigError(
+                    f"bearing_latency_s must be within +-{MAX_BEARING_LATENCY_S} s, got {lat!r}"
+                )
+            object.__setattr__(self, "bearing_latency_s", float(lat))
         h = self.hypotheses
         if isinstance(h, bool) or not isinstance(h, int) or not 1 <= h <= 31:
             raise ConfigError(f"hypotheses must be an integer in [1, 31], got {h!r}")

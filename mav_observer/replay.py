@@ -259,7 +259,9 @@ class ReplaySummary:
                     f"  noise: bearing {nz.bearing_noise_deg:.3g} deg "
                     f"({'learnt' if nz.bearing_noise_learnt else 'told'}), velocity "
                     f"{nz.velocity_noise_mps:.3g} m/s "
-                    f"({'learnt' if nz.velocity_noise_learnt else 'told'}); "
+                    f"({'learnt' if nz.velocity_noise_learnt else 'told'}), bearing latency "
+                    f"{1000 * nz.bearing_latency_s:.0f} ms "
+                    f"({'learnt' if nz.bearing_latency_learnt else 'told'}); "
                     f"{nz.outliers} of {nz.bearings} bearings down-weighted as gross errors; "
                     f"re-acquired {nz.reacquisitions} times"
                 )

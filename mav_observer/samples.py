@@ -231,6 +231,8 @@ class NoiseLevels:
     * ``bearings``: bearings applied; ``outliers``: of them, down-weighted as gross errors;
       ``reacquisitions``: times the estimate was re-seeded after a persistent
       inconsistency (the target moved, the tracker locked onto something else).
+    * ``bearing_latency_s``: how long the bearings trail the line of sight in use (s),
+      ``bearing_latency_learnt``: learnt online or told.
     """
 
     bearing_noise_deg: float
@@ -240,6 +242,8 @@ class NoiseLevels:
     bearings: int
     outliers: int
     reacquisitions: int
+    bearing_latency_s: float = 0.0
+    bearing_latency_learnt: bool = False
 
     def to_dict(self) -> dict[str, float | int | bool]:
         return {
@@ -250,4 +254,6 @@ class NoiseLevels:
             "bearings": self.bearings,
             "outliers": self.outliers,
             "reacquisitions": self.reacquisitions,
+            "bearing_latency_s": self.bearing_latency_s,
+            "bearing_latency_learnt": self.bearing_latency_learnt,
         }

@@ -156,6 +156,7 @@ ESTIMATOR_KEYS: dict[str, tuple[str, ...]] = {
         "bearing_noise_deg",
         "velocity_noise_mps",
         "bias_walk_mps_per_sqrt_s",
+        "bearing_latency_s",
         "robust",
         "hypotheses",
         "range_span",
@@ -169,6 +170,8 @@ OBSERVER_HELP = {
     "robust": "down-weight gross bearing errors (Huber, beyond the 99.9 % NIS quantile)",
     "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant, the "
     "default); auto: learnt online from 0 (opt-in, docs/tuning.md)",
+    "bearing_latency_s": "how long the bearings trail the line of sight (s, within +-0.5); "
+    "auto: learnt online (default)",
     "hypotheses": "filters in the bank",
     "range_span": "the bank spans guess/span to guess*span",
     "k_per_s": "gain k (1/s)",
@@ -188,7 +191,12 @@ OBSERVER_HELP = {
     "max_buffer": "most samples of one stream kept waiting for the other",
 }
 #: Observer settings that are learnt online when ``"auto"`` (the default) or told as a number.
-AUTO_KEYS = ("bearing_noise_deg", "velocity_noise_mps", "bias_walk_mps_per_sqrt_s")
+AUTO_KEYS = (
+    "bearing_noise_deg",
+    "velocity_noise_mps",
+    "bias_walk_mps_per_sqrt_s",
+    "bearing_latency_s",
+)
 #: Observer fields not set from the settings (the dimension; the paper's initial state).
 _OBSERVER_FIXED = ("n", "xh1_0_m", "m_0_s", "zs_0_mps")
 

@@ -19,11 +19,13 @@ from mav_observer import discrete, riccati
 from mav_observer.config import (
     AUTO,
     BEARING_NOISE_PRIOR_DEG,
+    MAX_BEARING_LATENCY_S,
     VELOCITY_NOISE_PRIOR_MPS,
     ObserverConfig,
 )
 from mav_observer.errors import StateError
 from mav_observer.estimators.base import Inputs, Output
+from mav_observer.latency import LatencyLearner, LatencyStateError
 from mav_observer.noise import NoiseStateError, VelocityNoise
 from mav_observer.samples import NoiseLevels
 
@@ -35,6 +37,13 @@ from mav_observer.samples import NoiseLevels
 #: (0.01 m/s, a random walk of 1 cm per root second, cost 1.9x the bound on the e2e case
 #: ``velocity_1hz``; 0.0003 m/s, 0.95x, and the same on the shared 1 Hz logs).
 CHORD_NOISE_MPS = 0.0003
+
+
+#: The latency is learnt from a converged estimate only: this long after the bank's seeding
+#: (s), with a position variance below :data:`LATENCY_CONVERGED_REL` squared times the
+#: range squared.
+LATENCY_AFTER_S = 20.0
+LATENCY_CONVERGED_REL = 0.05
 
 
 class RiccatiEstimator:
@@ -59,6 +68,12 @@ class RiccatiEstimator:
         self._prm_key: tuple[float, float] | None = None
         self._prm: riccati.BankParams | None = None
         self._prm_chord: riccati.BankParams | None = None
+        #: the bearings' latency, learnt (``bearing_latency_s = "auto"``) or told
+        self.latency = (
+            LatencyLearner(max_s=MAX_BEARING_LATENCY_S)
+            if config.bearing_latency_s == AUTO
+            else None
+        )
 
     # -- settings in force -----------------------------------------------------------
     def velocity_noise_mps(self) -> float:
@@ -84,6 +99,12 @@ class RiccatiEstimator:
             self._prm_chord = replace(prm, q_x=min(prm.q_x, CHORD_NOISE_MPS**2 * velocity_dt_s))
         return self._prm_chord
 
+    def bearing_latency_s(self) -> float:
+        """The bearings' latency in use (s): learnt or told."""
+        if self.latency is not None:
+            return self.latency.tau_s
+        return float(self.config.bearing_latency_s)
+
     # -- the interface ---------------------------------------------------------------
     @property
     def min_interval_s(self) -> float:
@@ -104,6 +125,8 @@ class RiccatiEstimator:
         other.__dict__.update(self.__dict__)
         if self.bank is not None:
             other.bank = riccati.copy_bank(self.bank)
+        if self.latency is not None:
+            other.latency = self.latency.copy()
         other._a_ref = self.output(None).a_mps  # type: ignore[arg-type]
         return other
 
@@ -121,7 +144,25 @@ class RiccatiEstimator:
 
     def update(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         gap = t_s - self.t_bearing_s if self.t_bearing_s is not None else 0.0
-        riccati.bank_update(self.bank, np.array([y]), gap, self.params(inputs.velocity_dt_s))  # type: ignore[arg-type]
+        prm = self.params(inputs.velocity_dt_s)
+        bank = self.bank
+        tau = self.bearing_latency_s()
+        lat = self.latency
+        v = None
+        if lat is not None or tau != 0.0:
+            v = np.array(inputs.velocity_at(t_s))
+        if lat is not None and bank.age_s[0] > LATENCY_AFTER_S:  # type: ignore[union-attr]
+            out = self.output(inputs)
+            n = len(y)
+            r2 = sum(c * c for c in out.x_m)
+            if float(np.trace(out.p[:n, :n])) < LATENCY_CONVERGED_REL**2 * r2:  # type: ignore[index]
+                var = float(bank.noise_var_rad2(prm)[0])  # type: ignore[union-attr]
+                lat.observe(t_s, out.x_m, out.a_mps, v.tolist(), y, var)  # type: ignore[union-attr]
+        if tau != 0.0:  # the bearing is the line of sight tau earlier: x - tau (v + a)
+            _move(bank, -tau, v)  # type: ignore[arg-type]
+        riccati.bank_update(bank, np.array([y]), gap, prm)  # type: ignore[arg-type]
+        if tau != 0.0:
+            _move(self.bank, tau, v)  # type: ignore[arg-type]
         self.t_bearing_s = t_s
         self._out = None
 
@@ -179,6 +220,8 @@ class RiccatiEstimator:
             bearings=bearings,
             outliers=outliers,
             reacquisitions=reseeds,
+            bearing_latency_s=self.bearing_latency_s(),
+            bearing_latency_learnt=self.latency is not None,
         )
 
     @property
@@ -200,6 +243,7 @@ class RiccatiEstimator:
     def to_dict(self) -> dict[str, Any]:
         return {
             "velocity_noise": None if self.vnoise is None else self.vnoise.to_dict(),
+            "bearing_latency": None if self.latency is None else self.latency.to_dict(),
             "kalman": None
             if self.bank is None
             else {
@@ -215,12 +259,25 @@ class RiccatiEstimator:
                 self.vnoise.restore(vn)
             except NoiseStateError as exc:
                 raise StateError(str(exc)) from exc
+        lat = d.get("bearing_latency")  # (absent from states saved before it was learnt)
+        if lat is not None and self.latency is not None:
+            try:
+                self.latency.restore(lat)
+            except LatencyStateError as exc:
+                raise StateError(str(exc)) from exc
         kal = d.get("kalman")
         if kal is not None:
             self.bank, self.t_bearing_s = _bank_from_dict(kal, self.config.n)
         elif started:
             raise StateError("observer state of a started riccati estimator has no 'kalman'")
         self._out = None
+
+
+def _move(bank: riccati.Bank, dt_s: float, v: np.ndarray) -> None:
+    """Move every state of the bank along its own ``x' = v + a`` by ``dt_s`` (s), in place."""
+    bank.x = bank.x + dt_s * (v + bank.a)
+    bank.xp = bank.xp + dt_s * (v + bank.ap)
+    bank.walk_x = bank.walk_x + dt_s * (v + bank.walk_a)
 
 
 def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None]:

@@ -1,0 +1,107 @@
+"""The bearings' latency behind the line of sight, learnt online (pure).
+
+A gimbal's controller trails a moving line of sight (a first-order lag of 0.1 s is a
+delay of about 0.1 s), a camera's timestamp is taken after the exposure, a servo mount
+moves late: the bearing at ``t`` is then the line of sight at ``t - tau``, ``y(t) =
+x(t - tau) / |x(t - tau)|``, ``x(t - tau) ~ x(t) - tau (v + a)``. A filter told nothing of
+it sees a bearing error that follows the line of sight's rate ``w = (I - y y^T)(v + a) / |x|``
+(rad/s): correlated over seconds, which no white noise level and no constant bias explains
+(the e2e case ``gimbal_lag``: 1.55x the bound, NEES 3; with the bias's random walk learnt,
+25.9x, the error taken for a wandering bias).
+
+:class:`LatencyLearner` regresses the filter's tangent innovation ``z = (I - yh yh^T) y``
+(``yh`` the estimate's direction, not shifted) on ``w``: ``z ~ -tau w``, so ``tau = -sum z.w
+/ sum |w|^2``, with an exponential forgetting of :data:`MEMORY_S` and a zero-mean prior of
+:data:`PRIOR_S` (a ridge: ``sum |w|^2`` plus ``sigma^2 / PRIOR_S^2``), only from a converged
+estimate and bearings within 3 sigma of it with the latency in use. The estimator then
+applies each bearing to the state moved back by ``tau (v + a)``
+(:class:`mav_observer.estimators.riccati.RiccatiEstimator`).
+A line of sight that hardly turns teaches nothing and the prior keeps ``tau`` near 0.
+No I/O, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+#: The forgetting time constant (s) of the regression.
+MEMORY_S = 120.0
+#: The prior's standard deviation (s) of the latency.
+PRIOR_S = 0.05
+#: A bearing further than this many sigma from the estimate teaches nothing.
+GATE_SIGMA = 3.0
+
+
+class LatencyStateError(ValueError):
+    """A saved latency state is malformed (the message names the field)."""
+
+
+@dataclass
+class LatencyLearner:
+    """Learns the bearings' latency (s; positive: the bearing trails the line of sight).
+
+    ``max_s``: the latency learnt stays within +-``max_s``."""
+
+    max_s: float = 0.5
+    s_zw: float = 0.0
+    s_ww: float = 0.0
+    tau_s: float = 0.0
+    t_s: float | None = None
+
+    def copy(self) -> LatencyLearner:
+        return LatencyLearner(self.max_s, self.s_zw, self.s_ww, self.tau_s, self.t_s)
+
+    def observe(
+        self,
+        t_s: float,
+        x_m: list[float],
+        a_mps: list[float],
+        v_mps: list[float],
+        y: list[float],
+        sig2_rad2: float,
+    ) -> None:
+        """One bearing ``y`` (unit) at ``t_s`` (s, in time order) against a converged
+        estimate ``x_m`` (m), ``a_mps`` (m/s) with the velocity ``v_mps`` (m/s, the paper's
+        ``v``) and the bearing noise variance in use ``sig2_rad2`` (rad^2)."""
+        n = len(x_m)
+        r2 = sum(c * c for c in x_m)
+        if r2 <= 0.0 or sig2_rad2 <= 0.0:
+            return
+        r = math.sqrt(r2)
+        yh = [c / r for c in x_m]
+        xd = [v_mps[j] + a_mps[j] for j in range(n)]
+        xd_along = sum(xd[j] * yh[j] for j in range(n))
+        w = [(xd[j] - xd_along * yh[j]) / r for j in range(n)]
+        y_along = sum(y[j] * yh[j] for j in range(n))
+        z = [y[j] - y_along * yh[j] for j in range(n)]
+        tau = self.tau_s
+        if sum((z[j] + tau * w[j]) ** 2 for j in range(n)) > GATE_SIGMA**2 * (n - 1) * sig2_rad2:
+            return  # an outlier (beyond the latency in use) says nothing of the latency
+        rho = 1.0 if self.t_s is None else math.exp(-max(t_s - self.t_s, 0.0) / MEMORY_S)
+        self.t_s = t_s
+        self.s_zw = rho * self.s_zw + sum(z[j] * w[j] for j in range(n))
+        self.s_ww = rho * self.s_ww + sum(c * c for c in w)
+        tau = -self.s_zw / (self.s_ww + sig2_rad2 / PRIOR_S**2)
+        self.tau_s = max(-self.max_s, min(self.max_s, tau))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"s_zw": self.s_zw, "s_ww": self.s_ww, "tau_s": self.tau_s, "t_s": self.t_s}
+
+    def restore(self, d: Any) -> None:
+        """Restore what :meth:`to_dict` saved (``max_s`` from the constructor)."""
+        try:
+            s_zw, s_ww, tau = float(d["s_zw"]), float(d["s_ww"]), float(d["tau_s"])
+            t = None if d["t_s"] is None else float(d["t_s"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise LatencyStateError(f"latency state is malformed: {exc!r}") from exc
+        for name, v in (("s_zw", s_zw), ("s_ww", s_ww), ("tau_s", tau), ("t_s", t)):
+            if v is not None and not math.isfinite(v):
+                raise LatencyStateError(f"latency state {name}={v!r} must be finite")
+        if s_ww < 0.0 or abs(tau) > self.max_s:
+            raise LatencyStateError(
+                f"latency state s_ww={s_ww!r} must be >= 0 and tau_s={tau!r} within "
+                f"+-{self.max_s} s"
+            )
+        self.s_zw, self.s_ww, self.tau_s, self.t_s = s_zw, s_ww, tau, t

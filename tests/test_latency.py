@@ -1,0 +1,74 @@
+"""The bearings' latency learnt online: a known delay recovered, none when there is none,
+gross errors ignored, the saved state checked."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mav_observer.latency import LatencyLearner, LatencyStateError
+
+
+def _orbit(delay_s: float, *, seed: int, outliers: float = 0.0, seconds: float = 120.0):
+    """A vehicle circling 40 m from the target at 8 m/s (the paper's ``x``, ``v``, ``a = 0``)
+    with 0.3 deg bearings that show the line of sight ``delay_s`` earlier."""
+    rng = np.random.default_rng(seed)
+    om = 8.0 / 40.0
+    for k in range(int(seconds * 20)):
+        t = 0.05 * k
+
+        def x_at(s: float) -> np.ndarray:
+            return np.array([40.0 * math.cos(om * s), 40.0 * math.sin(om * s), 10.0])
+
+        x = x_at(t)
+        v = np.array([-8.0 * math.sin(om * t), 8.0 * math.cos(om * t), 0.0])  # x' = v
+        y = x_at(t - delay_s)
+        y = y / np.linalg.norm(y) + rng.normal(0.0, math.radians(0.3), 3)
+        if rng.random() < outliers:
+            y = y + rng.normal(0.0, math.radians(20.0), 3)
+        yield t, x.tolist(), v.tolist(), (y / np.linalg.norm(y)).tolist()
+
+
+@pytest.mark.parametrize("delay_s", [0.0, 0.1, -0.05])
+def test_a_delay_of_the_bearings_is_learnt_within_5_ms(delay_s: float) -> None:
+    lat = LatencyLearner()
+    for t, x, v, y in _orbit(delay_s, seed=3):
+        lat.observe(t, x, [0.0, 0.0, 0.0], v, y, math.radians(0.3) ** 2)
+    assert lat.tau_s == pytest.approx(delay_s, abs=0.005)
+
+
+def test_gross_errors_teach_nothing() -> None:
+    lat = LatencyLearner()
+    for t, x, v, y in _orbit(0.1, seed=4, outliers=0.1):
+        lat.observe(t, x, [0.0, 0.0, 0.0], v, y, math.radians(0.3) ** 2)
+    assert lat.tau_s == pytest.approx(0.1, abs=0.01)
+
+
+def test_a_still_line_of_sight_keeps_the_prior_and_the_latency_stays_bounded() -> None:
+    lat = LatencyLearner(max_s=0.5)
+    x = [40.0, 0.0, 0.0]
+    for k in range(200):  # hovering: the line of sight does not turn
+        lat.observe(0.05 * k, x, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], 1e-4)
+    assert lat.tau_s == 0.0
+    # a line of sight turning one way while the bearings lag by seconds: clipped
+    big = LatencyLearner(max_s=0.5)
+    for t, x2, v, y in _orbit(2.0, seed=5, seconds=30.0):
+        big.observe(t, x2, [0.0, 0.0, 0.0], v, y, 0.04)  # a noise that lets it all in
+    assert big.tau_s == 0.5
+
+
+def test_the_state_round_trips_and_a_bad_one_names_its_field() -> None:
+    lat = LatencyLearner()
+    for t, x, v, y in _orbit(0.1, seed=6, seconds=10.0):
+        lat.observe(t, x, [0.0, 0.0, 0.0], v, y, math.radians(0.3) ** 2)
+    other = LatencyLearner()
+    other.restore(lat.to_dict())
+    assert other == lat
+    with pytest.raises(LatencyStateError, match="tau_s"):
+        other.restore({**lat.to_dict(), "tau_s": 3.0})
+    with pytest.raises(LatencyStateError, match="s_zw"):
+        other.restore({**lat.to_dict(), "s_zw": math.nan})
+    with pytest.raises(LatencyStateError, match="malformed"):
+        other.restore({"s_zw": 1.0})
