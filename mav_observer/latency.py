@@ -14,8 +14,9 @@ it sees a bearing error that follows the line of sight's rate ``w = (I - y y^T)(
 / sum |w|^2``, with an exponential forgetting of :data:`MEMORY_S` and a zero-mean prior of
 :data:`PRIOR_S` (a ridge: ``sum |w|^2`` plus ``sigma^2 / PRIOR_S^2``), only from a converged
 estimate and bearings within 3 sigma of it with the latency in use. The estimator then
-applies each bearing to the state moved back by ``tau (v + a)``
-(:class:`mav_observer.estimators.riccati.RiccatiEstimator`).
+brings each bearing forward by ``tau w`` (:func:`advance`; to first order the same as applying
+it to the state moved back by ``tau (v + a)``, and a few float operations instead of moving
+every filter of the bank: that cost 15 % per bearing).
 A line of sight that hardly turns teaches nothing and the prior keeps ``tau`` near 0.
 No I/O, no clock.
 """
@@ -32,6 +33,25 @@ MEMORY_S = 120.0
 PRIOR_S = 0.05
 #: A bearing further than this many sigma from the estimate teaches nothing.
 GATE_SIGMA = 3.0
+
+
+def advance(
+    y: list[float], x_m: list[float], a_mps: list[float], v_mps: list[float], tau_s: float
+) -> list[float]:
+    """The bearing ``y`` (unit) that shows the line of sight ``tau_s`` late, brought forward
+    to its own time along the estimate's line of sight rate: ``y + tau w``, re-normalised,
+    ``w = (I - y y^T)(v + a) / |x|`` (to first order in ``tau``, the same as applying ``y`` to
+    the state moved back by ``tau (v + a)``)."""
+    n = len(y)
+    r = math.sqrt(sum(c * c for c in x_m))
+    if r <= 0.0:
+        return y
+    xd = [v_mps[j] + a_mps[j] for j in range(n)]
+    along = sum(xd[j] * y[j] for j in range(n))
+    k = tau_s / r
+    out = [y[j] + k * (xd[j] - along * y[j]) for j in range(n)]
+    inv = 1.0 / math.sqrt(sum(c * c for c in out))
+    return [c * inv for c in out]
 
 
 class LatencyStateError(ValueError):

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mav_observer.latency import LatencyLearner, LatencyStateError
+from mav_observer.latency import LatencyLearner, LatencyStateError, advance
 
 
 def _orbit(delay_s: float, *, seed: int, outliers: float = 0.0, seconds: float = 120.0):
@@ -72,3 +72,24 @@ def test_the_state_round_trips_and_a_bad_one_names_its_field() -> None:
         other.restore({**lat.to_dict(), "s_zw": math.nan})
     with pytest.raises(LatencyStateError, match="malformed"):
         other.restore({"s_zw": 1.0})
+
+
+def test_a_late_bearing_is_brought_forward_to_its_own_time() -> None:
+    """On the orbit, the bearing 0.1 s late (0.02 rad behind) is brought within 2e-4 rad
+    of the line of sight at its time; with no latency it is returned as it is."""
+    om, t = 8.0 / 40.0, 3.0
+
+    def x_at(s: float) -> np.ndarray:
+        return np.array([40.0 * math.cos(om * s), 40.0 * math.sin(om * s), 10.0])
+
+    x = x_at(t)
+    v = [-8.0 * math.sin(om * t), 8.0 * math.cos(om * t), 0.0]
+    late = x_at(t - 0.1) / np.linalg.norm(x_at(t - 0.1))
+    los = x / np.linalg.norm(x)
+    assert math.acos(float(late @ los)) > 0.019
+    y = advance(late.tolist(), x.tolist(), [0.0, 0.0, 0.0], v, 0.1)
+    assert abs(np.linalg.norm(y) - 1.0) < 1e-12
+    assert math.acos(min(1.0, float(np.dot(y, los)))) < 2e-4
+    assert advance(late.tolist(), x.tolist(), [0.0, 0.0, 0.0], v, 0.0) == pytest.approx(
+        late.tolist()
+    )

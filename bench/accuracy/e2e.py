@@ -617,8 +617,9 @@ def markdown_defaults(
             "",
             f"`python -m bench.accuracy.e2e --defaults --seeds {seeds} --write-docs` "
             f"({len(res) * seeds} runs of {duration_s:g} s, {wall_s:.0f} s): what a new user "
-            "gets without a settings file: the bearing and velocity noise learnt online "
-            "(`docs/tuning.md`), robust weighting of gross errors on.",
+            "gets without a settings file: the bearing and velocity noise and the bearings' "
+            "latency learnt online (`docs/tuning.md`), robust weighting of gross errors on, "
+            "the bias constant.",
             "",
             table(res),
         ]

@@ -25,7 +25,7 @@ from mav_observer.config import (
 )
 from mav_observer.errors import StateError
 from mav_observer.estimators.base import Inputs, Output
-from mav_observer.latency import LatencyLearner, LatencyStateError
+from mav_observer.latency import LatencyLearner, LatencyStateError, advance
 from mav_observer.noise import NoiseStateError, VelocityNoise
 from mav_observer.samples import NoiseLevels
 
@@ -148,21 +148,19 @@ class RiccatiEstimator:
         bank = self.bank
         tau = self.bearing_latency_s()
         lat = self.latency
-        v = None
         if lat is not None or tau != 0.0:
-            v = np.array(inputs.velocity_at(t_s))
-        if lat is not None and bank.age_s[0] > LATENCY_AFTER_S:  # type: ignore[union-attr]
+            v = inputs.velocity_at(t_s)
             out = self.output(inputs)
-            n = len(y)
-            r2 = sum(c * c for c in out.x_m)
-            if float(np.trace(out.p[:n, :n])) < LATENCY_CONVERGED_REL**2 * r2:  # type: ignore[index]
-                var = float(bank.noise_var_rad2(prm)[0])  # type: ignore[union-attr]
-                lat.observe(t_s, out.x_m, out.a_mps, v.tolist(), y, var)  # type: ignore[union-attr]
-        if tau != 0.0:  # the bearing is the line of sight tau earlier: x - tau (v + a)
-            _move(bank, -tau, v)  # type: ignore[arg-type]
+            x, a = out.x_m, out.a_mps
+            if lat is not None and bank.age_s[0] > LATENCY_AFTER_S:  # type: ignore[union-attr]
+                p = out.p
+                var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
+                if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
+                    var = float(bank.noise_var_rad2(prm)[0])  # type: ignore[union-attr]
+                    lat.observe(t_s, x, a, v, y, var)
+            if tau != 0.0:  # the line of sight tau earlier, brought to t_s
+                y = advance(y, x, a, v, tau)
         riccati.bank_update(bank, np.array([y]), gap, prm)  # type: ignore[arg-type]
-        if tau != 0.0:
-            _move(self.bank, tau, v)  # type: ignore[arg-type]
         self.t_bearing_s = t_s
         self._out = None
 
@@ -271,13 +269,6 @@ class RiccatiEstimator:
         elif started:
             raise StateError("observer state of a started riccati estimator has no 'kalman'")
         self._out = None
-
-
-def _move(bank: riccati.Bank, dt_s: float, v: np.ndarray) -> None:
-    """Move every state of the bank along its own ``x' = v + a`` by ``dt_s`` (s), in place."""
-    bank.x = bank.x + dt_s * (v + bank.a)
-    bank.xp = bank.xp + dt_s * (v + bank.ap)
-    bank.walk_x = bank.walk_x + dt_s * (v + bank.walk_a)
 
 
 def _bank_from_dict(k: Any, n: int) -> tuple[riccati.Bank, float | None]:
