@@ -35,7 +35,8 @@ from mav_observer.samples import NoiseLevels
 #: injected bearings: a velocity noise of 0.05 m/s there cost 2x to 10x in error), and the
 #: displacements of successive intervals telescope, so the error does not accumulate either
 #: (0.01 m/s, a random walk of 1 cm per root second, cost 1.9x the bound on the e2e case
-#: ``velocity_1hz``; 0.0003 m/s, 0.95x, and the same on the shared 1 Hz logs).
+#: ``velocity_1hz``; 0.0003 m/s, 1.05x on the same seeds, and the same on the shared 1 Hz
+#: logs).
 CHORD_NOISE_MPS = 0.0003
 
 
