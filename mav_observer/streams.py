@@ -130,11 +130,11 @@ class SampleStreams:
         (tp, vp), (tv, vl) = self.velocities[-3], self.velocities[-2]
         s = t_s - tv
         v_end, slope, iv = _trend(tp, vp, tv, vl, self.vel_mean[tv])
-        ramp = 0.5 * s * s if s <= iv else 0.5 * iv * iv + iv * (s - iv)
+        pred = _trend_integral(v_end, slope, iv, s)
         n = len(vl)
         err2 = 0.0
         for j in range(n):
-            e = s * v_end[j] + ramp * slope[j] - s * mean_mps[j]
+            e = pred[j] - s * mean_mps[j]
             err2 += e * e
         sample = 4.0 * err2 / (n * s**4)
         rho = math.exp(-s / EXTRAPOLATION_MEMORY_S)
@@ -326,11 +326,8 @@ class SampleStreams:
         tp, vp = self.velocities[-2]
         v_end, slope, iv = _trend(tp, vp, tv, self.velocities[-1][1], self.vel_mean[tv])
 
-        def integral(s: float) -> list[float]:  # of v_end + slope * min(s', iv), 0..s
-            ramp = 0.5 * s * s if s <= iv else 0.5 * iv * iv + iv * (s - iv)
-            return [s * v_end[j] + ramp * slope[j] for j in range(n)]
-
-        a, b = integral(max(t0 - tv, 0.0)), integral(t1 - tv)
+        a = _trend_integral(v_end, slope, iv, max(t0 - tv, 0.0))
+        b = _trend_integral(v_end, slope, iv, t1 - tv)
         return [out[j] + b[j] - a[j] for j in range(n)]
 
 
@@ -345,3 +342,10 @@ def _trend(
     v_end = [vl[j] + mean[j] - 0.5 * (vp[j] + vl[j]) for j in range(n)]
     slope = [(vl[j] - vp[j]) / iv for j in range(n)]
     return v_end, slope, iv
+
+
+def _trend_integral(v_end: list[float], slope: list[float], iv: float, s: float) -> list[float]:
+    """The displacement (m) over ``[0, s]`` past the latest sample of a trend continued for
+    at most one interval ``iv`` (s), then held: the integral of ``v_end + slope min(s', iv)``."""
+    ramp = 0.5 * s * s if s <= iv else 0.5 * iv * iv + iv * (s - iv)
+    return [s * v_end[j] + ramp * slope[j] for j in range(len(v_end))]
