@@ -190,7 +190,7 @@ OBSERVER_FLAGS = (
         "--bias-walk",
         "bias_walk_mps_per_sqrt_s",
         _number_or_auto,
-        "bias random walk (m/s/sqrt s; 0, the default: constant), or auto: learnt online (riccati)",
+        "bias random walk (m/s/sqrt s; 0: constant), or auto: learnt online (riccati, default)",
     ),
     (
         "--bearing-latency-s",

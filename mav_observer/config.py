@@ -88,8 +88,9 @@ class ObserverConfig:
       (riccati): standard deviation of the bearing noise per direction, of each velocity
       component, and the random walk of ``a`` (its standard deviation grows by this per
       square root of a second; 0 for a constant ``a``). Each ``"auto"`` or a number:
-      ``"auto"`` learns it online, a number is used as told. The noises default to
-      ``"auto"``; the bias walk to 0 (its ``"auto"`` is opt-in: ``docs/tuning.md``).
+      ``"auto"`` (the default of all three) learns it online, a number is used as told
+      (the bias walk learnt from 0 once the bearing latency has settled:
+      ``docs/tuning.md``).
     * ``bearing_latency_s`` (riccati): how long (s) the bearings trail the line of sight
       (a gimbal's tracking lag, a timestamp taken late); ``"auto"`` (default) learns it
       online (:mod:`mav_observer.latency`), a number within +-0.5 s is used as told (0:
@@ -123,7 +124,7 @@ class ObserverConfig:
     mode: str = "biased"
     bearing_noise_deg: float | str = "auto"
     velocity_noise_mps: float | str = "auto"
-    bias_walk_mps_per_sqrt_s: float | str = 0.0
+    bias_walk_mps_per_sqrt_s: float | str = "auto"
     bearing_latency_s: float | str = "auto"
     robust: bool = True
     hypotheses: int = 7

@@ -69,9 +69,15 @@ class LatencyLearner:
     s_ww: float = 0.0
     tau_s: float = 0.0
     t_s: float | None = None
+    #: time (s) of the first bearing learnt from
+    t0_s: float | None = None
 
     def copy(self) -> LatencyLearner:
-        return LatencyLearner(self.max_s, self.s_zw, self.s_ww, self.tau_s, self.t_s)
+        return LatencyLearner(self.max_s, self.s_zw, self.s_ww, self.tau_s, self.t_s, self.t0_s)
+
+    def learning_for_s(self, t_s: float) -> float:
+        """How long (s) it has been learning at ``t_s`` (s): 0 before its first bearing."""
+        return 0.0 if self.t0_s is None else max(t_s - self.t0_s, 0.0)
 
     def observe(
         self,
@@ -101,22 +107,32 @@ class LatencyLearner:
             return  # an outlier (beyond the latency in use) says nothing of the latency
         rho = 1.0 if self.t_s is None else math.exp(-max(t_s - self.t_s, 0.0) / MEMORY_S)
         self.t_s = t_s
+        if self.t0_s is None:
+            self.t0_s = t_s
         self.s_zw = rho * self.s_zw + sum(z[j] * w[j] for j in range(n))
         self.s_ww = rho * self.s_ww + sum(c * c for c in w)
         tau = -self.s_zw / (self.s_ww + sig2_rad2 / PRIOR_S**2)
         self.tau_s = max(-self.max_s, min(self.max_s, tau))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"s_zw": self.s_zw, "s_ww": self.s_ww, "tau_s": self.tau_s, "t_s": self.t_s}
+        return {
+            "s_zw": self.s_zw,
+            "s_ww": self.s_ww,
+            "tau_s": self.tau_s,
+            "t_s": self.t_s,
+            "t0_s": self.t0_s,
+        }
 
     def restore(self, d: Any) -> None:
         """Restore what :meth:`to_dict` saved (``max_s`` from the constructor)."""
         try:
             s_zw, s_ww, tau = float(d["s_zw"]), float(d["s_ww"]), float(d["tau_s"])
             t = None if d["t_s"] is None else float(d["t_s"])
+            t0_raw = d.get("t0_s", t)  # (absent from states saved before it: the latest)
+            t0 = None if t0_raw is None else float(t0_raw)
         except (KeyError, TypeError, ValueError) as exc:
             raise LatencyStateError(f"latency state is malformed: {exc!r}") from exc
-        for name, v in (("s_zw", s_zw), ("s_ww", s_ww), ("tau_s", tau), ("t_s", t)):
+        for name, v in (("s_zw", s_zw), ("s_ww", s_ww), ("tau_s", tau), ("t_s", t), ("t0_s", t0)):
             if v is not None and not math.isfinite(v):
                 raise LatencyStateError(f"latency state {name}={v!r} must be finite")
         if s_ww < 0.0 or abs(tau) > self.max_s:
@@ -124,4 +140,4 @@ class LatencyLearner:
                 f"latency state s_ww={s_ww!r} must be >= 0 and tau_s={tau!r} within "
                 f"+-{self.max_s} s"
             )
-        self.s_zw, self.s_ww, self.tau_s, self.t_s = s_zw, s_ww, tau, t
+        self.s_zw, self.s_ww, self.tau_s, self.t_s, self.t0_s = s_zw, s_ww, tau, t, t0

@@ -261,7 +261,9 @@ class ReplaySummary:
                     f"{nz.velocity_noise_mps:.3g} m/s "
                     f"({'learnt' if nz.velocity_noise_learnt else 'told'}), bearing latency "
                     f"{1000 * nz.bearing_latency_s:.0f} ms "
-                    f"({'learnt' if nz.bearing_latency_learnt else 'told'}); "
+                    f"({'learnt' if nz.bearing_latency_learnt else 'told'}), bias walk "
+                    f"{nz.bias_walk_mps_per_sqrt_s:.2g} m/s/sqrt(s) "
+                    f"({'learnt' if nz.bias_walk_learnt else 'told'}); "
                     f"{nz.outliers} of {nz.bearings} bearings down-weighted as gross errors; "
                     f"re-acquired {nz.reacquisitions} times"
                 )

@@ -288,6 +288,11 @@ class BankParams:
       of ``range_rel_std`` times its range along the bearing.
     * ``bias_std_mps``: prior standard deviation of each component of ``a``.
     * ``prune``: a hypothesis whose weight falls below this is dropped.
+    * ``merge_maha``: a hypothesis whose state ``(x, a)`` is within this squared
+      Mahalanobis distance of its run's heaviest one (under the sum of their covariances)
+      is merged into it, moments matched (:func:`_merge`): hypotheses that converged to the
+      same estimate otherwise linger for minutes, their weights trading places, at the cost
+      of a filter each and with the bias's random walk not learnt (it needs one filter).
     * ``nis_gate``, ``nis_window_s``: a run whose innovations, averaged over the window, exceed
       ``nis_gate`` times their expected value is re-seeded from its Riccati observer. A
       bearing weighs in the average by the time since the previous one, at most
@@ -313,7 +318,12 @@ class BankParams:
       bank is down to one filter and ``walk_warmup_s`` after its seeding; their innovations'
       log-likelihoods against the filter's, summed with forgetting over ``walk_memory_s``,
       move ``q_a`` one level when a probe leads by ``walk_up_nats`` (up) or
-      ``walk_down_nats`` (down).
+      ``walk_down_nats`` (down); leaving 0, the paper's constant bias, takes a lead of
+      ``walk_leave_nats`` (its smallest level mostly fits a bearing error correlated over
+      seconds, and costs a constant-bias run 2x to 4x the bound). ``walk_hold``: the
+      probes wait (the level in use kept) while the bearings' latency is still being
+      learnt (a bearing error correlated over seconds is otherwise learnt as a wandering
+      bias, and the two feed each other).
     """
 
     sigma_rad: float
@@ -324,6 +334,7 @@ class BankParams:
     range_rel_std: float = 0.4
     bias_std_mps: float = 5.0
     prune: float = 1e-4
+    merge_maha: float = 1.0
     nis_gate: float = 3.0
     nis_window_s: float = 5.0
     outlier_nis: float = math.inf
@@ -337,9 +348,11 @@ class BankParams:
     walk_min: float = 1e-6
     walk_max: float = 1.0
     walk_up_nats: float = 6.0
+    walk_leave_nats: float = 15.0
     walk_down_nats: float = 2.0
     walk_memory_s: float = 60.0
     walk_warmup_s: float = 10.0
+    walk_hold: bool = False
 
 
 #: The fields of :class:`Bank` of the learnt random walk of the bias (a saved state from
@@ -601,6 +614,8 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
     keep = np.exp(bank.logw) >= prm.prune
     if not keep.all():
         _select(bank, keep)
+    if len(bank.owner) > runs:
+        _merge(bank, prm)
     bad = (bank.nis_avg > prm.nis_gate * m) & (bank.age_s > 2.0 * prm.nis_window_s)
     if bad.any():
         _reseed(bank, bad, y, prm)
@@ -645,6 +660,9 @@ def _walk_step(
     ``logdet`` are the update's rows (filters, observers, and the probes if ``probes``)."""
     runs = bank.runs
     g = f + runs
+    if prm.walk_hold:
+        bank.walk_on[:] = 0.0
+        return
     if runs == 1 and (f != 1 or not bank.age_s[0] > prm.walk_warmup_s):
         bank.walk_on[0] = 0.0  # one run (the service), not ready: nothing to do
         return
@@ -680,7 +698,8 @@ def _walk_step(
         diff = np.where(gross[:, None], 0.0, diff)
     lead = rho * bank.walk_ll + diff
     bank.walk_ll = np.where(on[:, None], lead, 0.0)
-    up = on & (lead[:, 1] > prm.walk_up_nats) & (bank.walk_q < prm.walk_max)
+    bar = np.where(bank.walk_q > 0.0, prm.walk_up_nats, prm.walk_leave_nats)
+    up = on & (lead[:, 1] > bar) & (bank.walk_q < prm.walk_max)
     down = on & ~up & (lead[:, 0] > prm.walk_down_nats) & (bank.walk_q > 0.0)
     levels = _walk_levels(bank.walk_q, prm)
     for r in np.flatnonzero(up | down):
@@ -716,7 +735,7 @@ def _walk_step_one(
     lead_hi = rho * float(ll[0, 1]) + diff_hi
     q = float(bank.walk_q[0])
     k = -1
-    if lead_hi > prm.walk_up_nats and q < prm.walk_max:
+    if lead_hi > (prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats) and q < prm.walk_max:
         k = 1
     elif lead_lo > prm.walk_down_nats and q > 0.0:
         k = 0
@@ -729,6 +748,44 @@ def _walk_step_one(
     bank.walk_a[0] = bank.a[0]
     bank.walk_p[0] = bank.p[0]
     ll[0] = 0.0
+
+
+def _merge(bank: Bank, prm: BankParams) -> None:
+    """Merge every filter within ``prm.merge_maha`` (squared Mahalanobis distance of the
+    states under the sum of the two covariances) of its run's heaviest filter into it: the
+    weights added, the mean and covariance those of the pair's mixture. In place."""
+    f = len(bank.owner)
+    w = np.exp(bank.logw)
+    order = np.lexsort((-w, bank.owner))  # by run, heaviest first
+    owners = bank.owner[order]
+    first = np.ones(f, dtype=bool)
+    first[1:] = owners[1:] != owners[:-1]
+    head = np.empty(bank.runs, dtype=int)
+    head[owners[first]] = order[first]
+    main = head[bank.owner]
+    idx = np.flatnonzero(main != np.arange(f))
+    if idx.size == 0:
+        return
+    s = np.concatenate((bank.x, bank.a), axis=-1)
+    d = s[idx] - s[main[idx]]
+    cov = bank.p[idx] + bank.p[main[idx]]
+    m = np.einsum("ij,ij->i", d, np.linalg.solve(cov, d[..., None])[..., 0])
+    close = idx[m < prm.merge_maha]
+    if close.size == 0:
+        return
+    n = bank.x.shape[-1]
+    keep = np.ones(f, dtype=bool)
+    keep[close] = False
+    for k in np.unique(main[close]):
+        group = np.concatenate(([k], close[main[close] == k]))
+        wg = w[group]
+        total = float(wg.sum())
+        mean = (wg[:, None] * s[group]).sum(axis=0) / total
+        dg = s[group] - mean
+        p = (wg[:, None, None] * (bank.p[group] + dg[:, :, None] * dg[:, None, :])).sum(axis=0)
+        bank.x[k], bank.a[k], bank.p[k] = mean[:n], mean[n:], p / total
+        bank.logw[k] = math.log(total)
+    _select(bank, keep)
 
 
 def _select(bank: Bank, keep: np.ndarray) -> None:

@@ -233,6 +233,8 @@ class NoiseLevels:
       inconsistency (the target moved, the tracker locked onto something else).
     * ``bearing_latency_s``: how long the bearings trail the line of sight in use (s),
       ``bearing_latency_learnt``: learnt online or told.
+    * ``bias_walk_mps_per_sqrt_s``: the random walk of the bias in use (m/s per square root
+      of a second; 0: constant), ``bias_walk_learnt``: learnt online or told.
     """
 
     bearing_noise_deg: float
@@ -244,6 +246,8 @@ class NoiseLevels:
     reacquisitions: int
     bearing_latency_s: float = 0.0
     bearing_latency_learnt: bool = False
+    bias_walk_mps_per_sqrt_s: float = 0.0
+    bias_walk_learnt: bool = False
 
     def to_dict(self) -> dict[str, float | int | bool]:
         return {
@@ -256,4 +260,6 @@ class NoiseLevels:
             "reacquisitions": self.reacquisitions,
             "bearing_latency_s": self.bearing_latency_s,
             "bearing_latency_learnt": self.bearing_latency_learnt,
+            "bias_walk_mps_per_sqrt_s": self.bias_walk_mps_per_sqrt_s,
+            "bias_walk_learnt": self.bias_walk_learnt,
         }

@@ -168,8 +168,8 @@ OBSERVER_HELP = {
     "bearing_noise_deg": "bearing noise per direction, 1 sigma (deg); auto: learnt online",
     "velocity_noise_mps": "white velocity noise per axis, 1 sigma (m/s); auto: learnt online",
     "robust": "down-weight gross bearing errors (Huber, beyond the 99.9 % NIS quantile)",
-    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant, the "
-    "default); auto: learnt online from 0 (opt-in, docs/tuning.md)",
+    "bias_walk_mps_per_sqrt_s": "random walk of the bias a (m/s per sqrt s; 0 = constant); auto: "
+    "learnt online from 0 (default, docs/tuning.md)",
     "bearing_latency_s": "how long the bearings trail the line of sight (s, within +-0.5); "
     "auto: learnt online (default)",
     "hypotheses": "filters in the bank",

@@ -276,3 +276,6 @@ def test_generated_blocks_survive_the_pages_regeneration(tmp_path: Path) -> None
     kept = blocks.blocks_of(text)
     fresh = blocks.with_blocks("# Accuracy\n\nnew intro\n\n## What is measured\n\nnew\n", kept)
     assert "rows 2" in fresh and "rows 3" in fresh and "new intro" in fresh
+    # rewriting a block leaves the page as it was: no blank lines pile up
+    blocks.put_block(page, "real-logs", "## Real\n\nrows 3")
+    assert page.read_text() == text and "\n\n\n" not in text

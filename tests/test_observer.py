@@ -807,10 +807,10 @@ def test_the_bearing_latency_is_learnt_by_default_and_a_number_is_used_as_told()
 
 
 def test_the_bias_walk_is_learnt_unless_told() -> None:
-    """``bias_walk_mps_per_sqrt_s``: "auto" learns it from 0; a number is used as told (0, the
-    default: a constant bias); never in the bias-free mode, which has no bias."""
+    """``bias_walk_mps_per_sqrt_s``: "auto" (the default) learns it from 0; a number is used
+    as told (0: a constant bias); never in the bias-free mode, which has no bias."""
     default = ObserverConfig().bank_params(0.1)
-    assert not default.learn_walk and default.q_a == 0.0
+    assert default.learn_walk and default.q_a == 0.0
     auto = ObserverConfig(bias_walk_mps_per_sqrt_s="auto").bank_params(0.1)
     assert auto.learn_walk and auto.q_a == 0.0
     told = ObserverConfig(bias_walk_mps_per_sqrt_s=0.018).bank_params(0.1)
@@ -819,6 +819,39 @@ def test_the_bias_walk_is_learnt_unless_told() -> None:
     assert not ObserverConfig(mode="bias_free").bank_params(0.1).learn_walk
     with pytest.raises(ConfigError, match="bias_walk"):
         ObserverConfig(bias_walk_mps_per_sqrt_s="sometimes")
+
+
+def test_the_bias_walk_waits_for_the_latency_and_is_published_in_the_noise_levels() -> None:
+    """A figure-8 whose bias wanders at 0.01 m/s/sqrt(s): with the latency learnt (the
+    default) the walk stays 0 while the latency learner is young, then is learnt and
+    reported (``bias_walk_learnt``); told 0, it stays 0 and is reported as told."""
+    rng = np.random.default_rng(5)
+    sc = scenarios.figure8(duration_s=200.0)
+    dt = 0.05
+    steps = int(200.0 / dt)
+    walk = np.cumsum(rng.normal(0.0, 0.01 * math.sqrt(dt), (steps, 3)), axis=0)
+    drift = np.cumsum(walk * dt, axis=0)
+    auto = BiasObserver(ObserverConfig())
+    told = BiasObserver(ObserverConfig(bias_walk_mps_per_sqrt_s=0.0))
+    walk_at: dict[float, float] = {}
+    for k in range(steps):
+        t = dt * k
+        x = sc.x(t) + drift[k]
+        y = x / np.linalg.norm(x) + rng.normal(0.0, math.radians(0.3), 3)
+        y = y / np.linalg.norm(y)
+        for obs in (auto, told):
+            obs.update_velocity_values(t, sc.v(t).tolist())
+            obs.update_bearing_values(t, y.tolist())
+        if k % 200 == 0:
+            walk_at[t] = auto.noise().bias_walk_mps_per_sqrt_s  # type: ignore[union-attr]
+    na, nt = auto.noise(), told.noise()
+    assert na is not None and nt is not None
+    assert na.bias_walk_learnt and not nt.bias_walk_learnt
+    assert nt.bias_walk_mps_per_sqrt_s == 0.0
+    # the latency starts learning 20 s after the seeding at the earliest, the walk 30 s later
+    assert all(w == 0.0 for t, w in walk_at.items() if t <= 50.0), walk_at
+    assert 0.002 < na.bias_walk_mps_per_sqrt_s < 0.05, walk_at
+    assert na.to_dict()["bias_walk_mps_per_sqrt_s"] == na.bias_walk_mps_per_sqrt_s
 
 
 def test_a_state_saved_before_the_bias_walk_was_learnt_restores_with_none() -> None:

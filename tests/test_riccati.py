@@ -193,6 +193,39 @@ def test_mixture_estimate_includes_the_spread_of_the_hypotheses() -> None:
     assert np.allclose(np.diag(p[0])[3:], 25.0)
 
 
+def test_hypotheses_that_converged_to_one_estimate_are_merged_moments_matched() -> None:
+    """Two filters of a run a fraction of a sigma apart become one carrying both weights and
+    the pair's mixture mean and covariance; a third, many sigma off, and the other run's
+    filters stay."""
+    y0 = np.array([[0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])
+    prm = riccati.BankParams(sigma_rad=0.01, hypotheses=3, span=4.0, range_rel_std=0.1)
+    bank = riccati.bank_start(y0, np.array([10.0, 10.0]), prm)
+    assert len(bank.owner) == 6
+    i, j = np.flatnonzero(bank.owner == 0)[:2]  # run 0's two nearest ranges: made close
+    bank.x[j] = bank.x[i] + 0.1 * np.sqrt(np.diag(bank.p[i])[:3])
+    bank.a[j] = bank.a[i]
+    bank.p[j] = bank.p[i]
+    w = np.exp(bank.logw)
+    s = np.concatenate((bank.x, bank.a), axis=-1)
+    pair = [i, j]
+    total = w[pair].sum()
+    mean = (w[pair, None] * s[pair]).sum(axis=0) / total
+    d = s[pair] - mean
+    cov = sum(w[k] * (bank.p[k] + np.outer(d[n], d[n])) for n, k in enumerate(pair)) / total
+    others = [k for k in range(6) if k not in pair]
+    s_others = s[others]
+    riccati._merge(bank, prm)
+    assert len(bank.owner) == 5
+    assert np.bincount(bank.owner).tolist() == [2, 3]
+    s_after = np.concatenate((bank.x, bank.a), axis=-1)
+    k = int(np.argmin(np.linalg.norm(s_after - mean, axis=1)))
+    assert np.allclose(s_after[k], mean)
+    assert np.allclose(bank.p[k], cov)
+    w_after = np.exp(bank.logw)
+    assert w_after[k] == pytest.approx(total)  # (the weights sum to 1 per run)
+    assert all(np.any(np.all(np.isclose(s_after, row), axis=1)) for row in s_others)
+
+
 def _orbit_bearings(
     rng: np.random.Generator, runs: int, duration_s: float, sigma: float, dt: float = 0.05
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -312,6 +345,7 @@ def _walking_bias_run(
     duration_s: float = 240.0,
     dt: float = 0.05,
     outliers: float = 0.0,
+    **prm_kw: float | bool,
 ) -> tuple[riccati.Bank, riccati.BankParams, np.ndarray]:
     """Orbit, 0.5 deg bearings (the noise learnt), a bias that is a random walk of intensity
     ``q_true`` (m^2/s^3) on top of the scenario's: the bank learning its walk; returns the
@@ -327,7 +361,11 @@ def _walking_bias_run(
     gross = rng.random(y.shape[:2]) < outliers  # 10 deg off (a tracker's false lock)
     y[gross] = perturb_bearings(y[gross], math.radians(10.0), rng)
     prm = riccati.BankParams(
-        sigma_rad=math.radians(1.0), learn_noise=True, outlier_nis=13.816, learn_walk=True
+        sigma_rad=math.radians(1.0),
+        learn_noise=True,
+        outlier_nis=13.816,
+        learn_walk=True,
+        **prm_kw,  # type: ignore[arg-type]
     )
     vv = np.broadcast_to(v, (runs, *v.shape))
     bank = _bank_run(y, vv, np.full(runs, float(np.linalg.norm(xs[0]))), prm, dt)
@@ -347,6 +385,16 @@ def test_the_bias_walk_is_learnt_and_a_constant_bias_stays_constant() -> None:
     assert 0.3 < nees.mean() < 2.0, nees
     bank, prm, _ = _walking_bias_run(0.0, 32, 2)
     assert np.all(bank.bias_walk(prm) == 0.0)
+
+
+def test_the_bias_walk_waits_while_held_and_leaving_zero_takes_the_leave_bar() -> None:
+    """The same wandering bias: held (the latency still being learnt), no probe runs and
+    nothing is learnt; with a bar to leave 0 no lead reaches, the walk stays 0; with the
+    default bar it is learnt (the test above)."""
+    bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_hold=True)
+    assert np.all(bank.bias_walk(prm) == 0.0) and not bank.walk_on.any()
+    bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_leave_nats=1e9)
+    assert np.all(bank.bias_walk(prm) == 0.0) and bank.walk_on.all()
 
 
 def test_gross_bearing_errors_do_not_make_the_bias_walk() -> None:

@@ -37,6 +37,7 @@ def with_blocks(page: str, blocks: dict[str, str]) -> str:
     page's first paragraph (the title and the generator's note)."""
     for name in ORDER:
         page = _pattern(name).sub("", page)
+    page = re.sub(r"\n{3,}", "\n\n", page)  # the blank lines around the blocks taken out
     text = "".join(blocks[n] + "\n" for n in ORDER if n in blocks)
     anchor = page.find("\n## ")
     if anchor < 0:

@@ -125,7 +125,7 @@ OWN_COMPONENT = {
     "component_clock_drift_ppm": 40.0,
 }
 FAST = {"attitude_hz": 50.0, "bearing_hz": 25.0, "position_hz": 10.0}
-TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0}
+TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0, "bias_walk_mps_per_sqrt_s": 0.0}
 B05 = {"bearing_noise_deg": 0.5}
 
 
@@ -618,8 +618,8 @@ def markdown_defaults(
             f"`python -m bench.accuracy.e2e --defaults --seeds {seeds} --write-docs` "
             f"({len(res) * seeds} runs of {duration_s:g} s, {wall_s:.0f} s): what a new user "
             "gets without a settings file: the bearing and velocity noise and the bearings' "
-            "latency learnt online (`docs/tuning.md`), robust weighting of gross errors on, "
-            "the bias constant.",
+            "latency and the bias's random walk learnt online (`docs/tuning.md`), robust "
+            "weighting of gross errors on.",
             "",
             table(res),
         ]

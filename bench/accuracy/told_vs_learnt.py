@@ -17,7 +17,7 @@ from dataclasses import replace
 from bench.accuracy import e2e
 
 CASES = ("noise_0p2deg", "noise_2deg", "outliers_5pct", "outliers_20pct")
-TOLD = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0}
+TOLD = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0, "bias_walk_mps_per_sqrt_s": 0.0}
 
 
 def _one(task: tuple[str, int]) -> tuple[str, dict]:

@@ -45,6 +45,13 @@ CHORD_NOISE_MPS = 0.0003
 #: range squared.
 LATENCY_AFTER_S = 20.0
 LATENCY_CONVERGED_REL = 0.05
+#: The bias's random walk is learnt (``bias_walk_mps_per_sqrt_s = "auto"``) only once the
+#: latency has been learning this long (s), when it is learnt: before, a gimbal's lag not yet
+#: accounted for looks like a wandering bias, and a wandering bias moves the latency.
+WALK_AFTER_LATENCY_S = 30.0
+#: ... but at most this long after the bank's seeding (s): an estimate that never converges
+#: well enough to learn the latency from still learns the walk.
+WALK_HOLD_MAX_S = 90.0
 
 
 class RiccatiEstimator:
@@ -69,6 +76,7 @@ class RiccatiEstimator:
         self._prm_key: tuple[float, float] | None = None
         self._prm: riccati.BankParams | None = None
         self._prm_chord: riccati.BankParams | None = None
+        self._prm_held: riccati.BankParams | None = None
         #: the bearings' latency, learnt (``bearing_latency_s = "auto"``) or told
         self.latency = (
             LatencyLearner(max_s=MAX_BEARING_LATENCY_S)
@@ -92,6 +100,7 @@ class RiccatiEstimator:
         if key != self._prm_key or self._prm is None:
             self._prm = self.config.bank_params(velocity_dt_s, key[1])
             self._prm_chord = None
+            self._prm_held = None
             self._prm_key = key
         if not chord:
             return self._prm
@@ -149,6 +158,15 @@ class RiccatiEstimator:
         bank = self.bank
         tau = self.bearing_latency_s()
         lat = self.latency
+        if (
+            prm.learn_walk
+            and lat is not None
+            and lat.learning_for_s(t_s) < WALK_AFTER_LATENCY_S
+            and bank.age_s[0] < WALK_HOLD_MAX_S  # type: ignore[union-attr]
+        ):
+            if self._prm_held is None:
+                self._prm_held = replace(prm, walk_hold=True)
+            prm = self._prm_held
         if lat is not None or tau != 0.0:
             v = inputs.velocity_at(t_s)
             out = self.output(inputs)
@@ -207,10 +225,12 @@ class RiccatiEstimator:
         bank = self.bank
         if bank is None:
             var, bearings, outliers, reseeds = prm.sigma_rad**2, 0, 0, 0
+            q_a = prm.q_a
         else:
             var = float(bank.noise_var_rad2(prm)[0])
             bearings, outliers = int(bank.bearings[0]), int(bank.outliers[0])
             reseeds = int(bank.reseeds[0])
+            q_a = float(bank.bias_walk(prm)[0])
         return NoiseLevels(
             bearing_noise_deg=math.degrees(math.sqrt(var)),
             bearing_noise_learnt=prm.learn_noise,
@@ -221,6 +241,8 @@ class RiccatiEstimator:
             reacquisitions=reseeds,
             bearing_latency_s=self.bearing_latency_s(),
             bearing_latency_learnt=self.latency is not None,
+            bias_walk_mps_per_sqrt_s=math.sqrt(q_a),
+            bias_walk_learnt=prm.learn_walk,
         )
 
     @property
