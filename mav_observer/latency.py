@@ -35,6 +35,15 @@ PRIOR_S = 0.05
 GATE_SIGMA = 3.0
 
 
+def los_rate(u: list[float], r_m: float, a_mps: list[float], v_mps: list[float]) -> list[float]:
+    """The line of sight's rate (rad/s) along the unit direction ``u`` at the range ``r_m``
+    (m > 0): ``w = (I - u u^T)(v + a) / r``, ``v_mps`` the paper's ``v``, ``a_mps`` the bias."""
+    n = len(u)
+    xd = [v_mps[j] + a_mps[j] for j in range(n)]
+    along = sum(xd[j] * u[j] for j in range(n))
+    return [(xd[j] - along * u[j]) / r_m for j in range(n)]
+
+
 def advance(
     y: list[float], x_m: list[float], a_mps: list[float], v_mps: list[float], tau_s: float
 ) -> list[float]:
@@ -42,14 +51,11 @@ def advance(
     to its own time along the estimate's line of sight rate: ``y + tau w``, re-normalised,
     ``w = (I - y y^T)(v + a) / |x|`` (to first order in ``tau``, the same as applying ``y`` to
     the state moved back by ``tau (v + a)``)."""
-    n = len(y)
     r = math.sqrt(sum(c * c for c in x_m))
     if r <= 0.0:
         return y
-    xd = [v_mps[j] + a_mps[j] for j in range(n)]
-    along = sum(xd[j] * y[j] for j in range(n))
-    k = tau_s / r
-    out = [y[j] + k * (xd[j] - along * y[j]) for j in range(n)]
+    w = los_rate(y, r, a_mps, v_mps)
+    out = [y[j] + tau_s * w[j] for j in range(len(y))]
     inv = 1.0 / math.sqrt(sum(c * c for c in out))
     return [c * inv for c in out]
 
@@ -97,9 +103,7 @@ class LatencyLearner:
             return
         r = math.sqrt(r2)
         yh = [c / r for c in x_m]
-        xd = [v_mps[j] + a_mps[j] for j in range(n)]
-        xd_along = sum(xd[j] * yh[j] for j in range(n))
-        w = [(xd[j] - xd_along * yh[j]) / r for j in range(n)]
+        w = los_rate(yh, r, a_mps, v_mps)
         y_along = sum(y[j] * yh[j] for j in range(n))
         z = [y[j] - y_along * yh[j] for j in range(n)]
         tau = self.tau_s

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mav_observer.latency import LatencyLearner, LatencyStateError, advance
+from mav_observer.latency import LatencyLearner, LatencyStateError, advance, los_rate
 
 
 def _orbit(delay_s: float, *, seed: int, outliers: float = 0.0, seconds: float = 120.0):
@@ -93,3 +93,13 @@ def test_a_late_bearing_is_brought_forward_to_its_own_time() -> None:
     assert advance(late.tolist(), x.tolist(), [0.0, 0.0, 0.0], v, 0.0) == pytest.approx(
         late.tolist()
     )
+
+
+def test_the_line_of_sight_rate_is_the_velocity_across_the_bearing_over_the_range() -> None:
+    """``w = (I - u u^T)(v + a) / r``: orthogonal to ``u``; a velocity along ``u`` turns it
+    not at all, one across it at speed s and range r turns it at s / r."""
+    u = [0.6, 0.8, 0.0]
+    w = los_rate(u, 10.0, [0.3, 0.4, 0.0], [0.0, 0.0, 2.0])
+    assert sum(w[j] * u[j] for j in range(3)) == pytest.approx(0.0, abs=1e-15)
+    assert w == pytest.approx([0.0, 0.0, 0.2])
+    assert los_rate(u, 5.0, [0.0] * 3, [1.2, 1.6, 0.0]) == pytest.approx([0.0] * 3, abs=1e-15)
