@@ -145,3 +145,30 @@ class LatencyLearner:
                 f"+-{self.max_s} s"
             )
         self.s_zw, self.s_ww, self.tau_s, self.t_s, self.t0_s = s_zw, s_ww, tau, t, t0
+
+
+@dataclass
+class Settling:
+    """Whether a learnt latency has settled: learning for at least ``after_s`` (s) and moved
+    by less than ``step_s`` (s) over the latest window of ``window_s`` (s), checked once per
+    window (windows from the first time seen). A latency still moving (an estimate
+    converging, a gimbal's lag being learnt) leaves a bearing error correlated over seconds."""
+
+    window_s: float = 20.0
+    step_s: float = 0.003
+    after_s: float = 30.0
+    t_ref_s: float | None = None
+    tau_ref_s: float = 0.0
+    settled: bool = False
+
+    def update(self, t_s: float, tau_s: float, learning_for_s: float) -> bool:
+        """Account the latency ``tau_s`` (s) learnt for ``learning_for_s`` (s) at ``t_s``
+        (s); returns whether it has settled."""
+        if self.t_ref_s is None or t_s < self.t_ref_s:
+            self.t_ref_s, self.tau_ref_s = t_s, tau_s
+        elif t_s - self.t_ref_s >= self.window_s:
+            self.settled = (
+                learning_for_s >= self.after_s and abs(tau_s - self.tau_ref_s) < self.step_s
+            )
+            self.t_ref_s, self.tau_ref_s = t_s, tau_s
+        return self.settled

@@ -321,9 +321,10 @@ class BankParams:
       ``walk_down_nats`` (down); leaving 0, the paper's constant bias, takes a lead of
       ``walk_leave_nats`` (its smallest level mostly fits a bearing error correlated over
       seconds, and costs a constant-bias run 2x to 4x the bound). ``walk_hold``: the
-      probes wait (the level in use kept) while the bearings' latency is still being
-      learnt (a bearing error correlated over seconds is otherwise learnt as a wandering
-      bias, and the two feed each other).
+      bearings' latency is still being learnt (a bearing error correlated over seconds is
+      otherwise learnt as a wandering bias, and the two feed each other): moving the level
+      up takes a lead of at least ``walk_hold_nats``; ``inf``: no probe runs, the level in
+      use kept.
     """
 
     sigma_rad: float
@@ -353,6 +354,7 @@ class BankParams:
     walk_memory_s: float = 60.0
     walk_warmup_s: float = 10.0
     walk_hold: bool = False
+    walk_hold_nats: float = 60.0
 
 
 #: The fields of :class:`Bank` of the learnt random walk of the bias (a saved state from
@@ -660,7 +662,7 @@ def _walk_step(
     ``logdet`` are the update's rows (filters, observers, and the probes if ``probes``)."""
     runs = bank.runs
     g = f + runs
-    if prm.walk_hold:
+    if prm.walk_hold and not math.isfinite(prm.walk_hold_nats):
         bank.walk_on[:] = 0.0
         return
     if runs == 1 and (f != 1 or not bank.age_s[0] > prm.walk_warmup_s):
@@ -699,6 +701,8 @@ def _walk_step(
     lead = rho * bank.walk_ll + diff
     bank.walk_ll = np.where(on[:, None], lead, 0.0)
     bar = np.where(bank.walk_q > 0.0, prm.walk_up_nats, prm.walk_leave_nats)
+    if prm.walk_hold:
+        bar = np.maximum(bar, prm.walk_hold_nats)
     up = on & (lead[:, 1] > bar) & (bank.walk_q < prm.walk_max)
     down = on & ~up & (lead[:, 0] > prm.walk_down_nats) & (bank.walk_q > 0.0)
     levels = _walk_levels(bank.walk_q, prm)
@@ -735,7 +739,10 @@ def _walk_step_one(
     lead_hi = rho * float(ll[0, 1]) + diff_hi
     q = float(bank.walk_q[0])
     k = -1
-    if lead_hi > (prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats) and q < prm.walk_max:
+    bar = prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats
+    if prm.walk_hold:
+        bar = max(bar, prm.walk_hold_nats)
+    if lead_hi > bar and q < prm.walk_max:
         k = 1
     elif lead_lo > prm.walk_down_nats and q > 0.0:
         k = 0

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from mav_observer.latency import LatencyLearner, LatencyStateError, advance, los_rate
+from mav_observer.latency import LatencyLearner, LatencyStateError, Settling, advance, los_rate
 
 
 def _orbit(delay_s: float, *, seed: int, outliers: float = 0.0, seconds: float = 120.0):
@@ -103,3 +103,20 @@ def test_the_line_of_sight_rate_is_the_velocity_across_the_bearing_over_the_rang
     assert sum(w[j] * u[j] for j in range(3)) == pytest.approx(0.0, abs=1e-15)
     assert w == pytest.approx([0.0, 0.0, 0.2])
     assert los_rate(u, 5.0, [0.0] * 3, [1.2, 1.6, 0.0]) == pytest.approx([0.0] * 3, abs=1e-15)
+
+
+def test_a_latency_settles_once_learning_long_enough_and_no_longer_moving() -> None:
+    """Checked once per window: not before ``after_s`` of learning, not while it moved by
+    ``step_s`` or more over the window, and a clock that went back restarts the window."""
+    s = Settling(window_s=20.0, step_s=0.003, after_s=30.0)
+    assert not s.update(0.0, 0.0, 0.0)
+    assert not s.update(20.0, 0.0, 20.0)  # still: but learning for 20 s < 30 s
+    assert s.update(40.0, 0.002, 40.0)  # moved 2 ms over the window
+    assert s.update(55.0, 0.090, 55.0)  # mid-window: unchanged until it ends
+    assert not s.update(60.0, 0.090, 60.0)  # moved 88 ms
+    assert not s.update(80.0, 0.084, 80.0)  # 6 ms
+    assert s.update(100.0, 0.083, 100.0)
+    assert s.update(90.0, 0.2, 100.0)  # back in time: the verdict kept, the window restarts
+    assert (s.t_ref_s, s.tau_ref_s) == (90.0, 0.2)
+    assert s.update(105.0, 0.0, 105.0)  # mid-window: the verdict kept
+    assert s.update(110.0, 0.2, 110.0)  # over the window from 90 s it did not move

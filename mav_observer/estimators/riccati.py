@@ -25,7 +25,7 @@ from mav_observer.config import (
 )
 from mav_observer.errors import StateError
 from mav_observer.estimators.base import Inputs, Output
-from mav_observer.latency import LatencyLearner, LatencyStateError, advance
+from mav_observer.latency import LatencyLearner, LatencyStateError, Settling, advance
 from mav_observer.noise import NoiseStateError, VelocityNoise
 from mav_observer.samples import NoiseLevels
 
@@ -43,15 +43,24 @@ CHORD_NOISE_MPS = 0.0003
 #: The latency is learnt from a converged estimate only: this long after the bank's seeding
 #: (s), with a position variance below :data:`LATENCY_CONVERGED_REL` squared times the
 #: range squared.
-LATENCY_AFTER_S = 20.0
+LATENCY_AFTER_S = 30.0
 LATENCY_CONVERGED_REL = 0.05
-#: The bias's random walk is learnt (``bias_walk_mps_per_sqrt_s = "auto"``) only once the
-#: latency has been learning this long (s), when it is learnt: before, a gimbal's lag not yet
-#: accounted for looks like a wandering bias, and a wandering bias moves the latency.
+#: The bias's random walk (``bias_walk_mps_per_sqrt_s = "auto"``) waits for the latency, when
+#: that is learnt too, in two phases. Off (no probe runs) until the latency has been learning
+#: for this long (s): before, a gimbal's lag not yet accounted for looks like a wandering bias,
+#: and a wandering bias moves the latency ...
 WALK_AFTER_LATENCY_S = 30.0
 #: ... but at most this long after the bank's seeding (s): an estimate that never converges
 #: well enough to learn the latency from still learns the walk.
 WALK_HOLD_MAX_S = 90.0
+#: Then held (leaving its level upward takes ``BankParams.walk_hold_nats`` of lead) until the
+#: latency has settled (:class:`~mav_observer.latency.Settling`): moved by less than
+#: :data:`WALK_LATENCY_STEP_S` (s) over the latest :data:`WALK_LATENCY_WINDOW_S` (s). A latency
+#: still moving (the lag being learnt) leaves a bearing error correlated over seconds, which
+#: the probes take for a wandering bias; a bias that wanders as much as the e2e case
+#: ``velocity_coloured`` (0.1 m/s Gauss-Markov) still clears the higher bar.
+WALK_LATENCY_WINDOW_S = 20.0
+WALK_LATENCY_STEP_S = 0.003
 
 
 class RiccatiEstimator:
@@ -77,6 +86,9 @@ class RiccatiEstimator:
         self._prm: riccati.BankParams | None = None
         self._prm_chord: riccati.BankParams | None = None
         self._prm_held: riccati.BankParams | None = None
+        self._prm_off: riccati.BankParams | None = None
+        #: whether the latency learnt has settled (the walk's hold)
+        self.settling = Settling(WALK_LATENCY_WINDOW_S, WALK_LATENCY_STEP_S, WALK_AFTER_LATENCY_S)
         #: the bearings' latency, learnt (``bearing_latency_s = "auto"``) or told
         self.latency = (
             LatencyLearner(max_s=MAX_BEARING_LATENCY_S)
@@ -101,6 +113,7 @@ class RiccatiEstimator:
             self._prm = self.config.bank_params(velocity_dt_s, key[1])
             self._prm_chord = None
             self._prm_held = None
+            self._prm_off = None
             self._prm_key = key
         if not chord:
             return self._prm
@@ -137,6 +150,7 @@ class RiccatiEstimator:
             other.bank = riccati.copy_bank(self.bank)
         if self.latency is not None:
             other.latency = self.latency.copy()
+        other.settling = replace(self.settling)
         other._a_ref = self.output(None).a_mps  # type: ignore[arg-type]
         return other
 
@@ -158,15 +172,18 @@ class RiccatiEstimator:
         bank = self.bank
         tau = self.bearing_latency_s()
         lat = self.latency
-        if (
-            prm.learn_walk
-            and lat is not None
-            and lat.learning_for_s(t_s) < WALK_AFTER_LATENCY_S
-            and bank.age_s[0] < WALK_HOLD_MAX_S  # type: ignore[union-attr]
-        ):
-            if self._prm_held is None:
-                self._prm_held = replace(prm, walk_hold=True)
-            prm = self._prm_held
+        if prm.learn_walk and lat is not None:
+            settled = self.settling.update(t_s, lat.tau_s, lat.learning_for_s(t_s))
+            if (
+                lat.learning_for_s(t_s) < WALK_AFTER_LATENCY_S and bank.age_s[0] < WALK_HOLD_MAX_S  # type: ignore[union-attr]
+            ):
+                if self._prm_off is None:
+                    self._prm_off = replace(prm, walk_hold=True, walk_hold_nats=math.inf)
+                prm = self._prm_off
+            elif not settled:
+                if self._prm_held is None:
+                    self._prm_held = replace(prm, walk_hold=True)
+                prm = self._prm_held
         if lat is not None or tau != 0.0:
             v = inputs.velocity_at(t_s)
             out = self.output(inputs)
