@@ -389,15 +389,11 @@ def test_the_bias_walk_is_learnt_and_a_constant_bias_stays_constant() -> None:
 
 def test_the_bias_walk_waits_while_held_and_leaving_zero_takes_the_leave_bar() -> None:
     """The same wandering bias: held off (``walk_hold_nats`` inf), no probe runs and
-    nothing is learnt; held with a bar no lead reaches, the probes run and nothing is
-    learnt; held with a bar this bias clears, it is learnt; with a bar to leave 0 no lead
-    reaches, the walk stays 0; with the default bar it is learnt (the test above)."""
+    nothing is learnt; held with the default bar, which this bias clears, it is learnt; with
+    a bar to leave 0 no lead reaches, the walk stays 0."""
     off = {"walk_hold": True, "walk_hold_nats": math.inf}
     bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, **off)
     assert np.all(bank.bias_walk(prm) == 0.0) and not bank.walk_on.any()
-    high = {"walk_hold": True, "walk_hold_nats": 1e9}
-    bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, **high)
-    assert np.all(bank.bias_walk(prm) == 0.0) and bank.walk_on.all()
     bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_hold=True)
     assert np.all(bank.bias_walk(prm) > 0.0), bank.bias_walk(prm)
     bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_leave_nats=1e9)
