@@ -173,10 +173,10 @@ class RiccatiEstimator:
         tau = self.bearing_latency_s()
         lat = self.latency
         if prm.learn_walk and lat is not None:
-            settled = self.settling.update(t_s, lat.tau_s, lat.learning_for_s(t_s))
-            if (
-                lat.learning_for_s(t_s) < WALK_AFTER_LATENCY_S and bank.age_s[0] < WALK_HOLD_MAX_S  # type: ignore[union-attr]
-            ):
+            learning_s = lat.learning_for_s(t_s)
+            settled = self.settling.update(t_s, lat.tau_s, learning_s)
+            age_s = float(bank.age_s[0])  # type: ignore[union-attr]
+            if learning_s < WALK_AFTER_LATENCY_S and age_s < WALK_HOLD_MAX_S:
                 if self._prm_off is None:
                     self._prm_off = replace(prm, walk_hold=True, walk_hold_nats=math.inf)
                 prm = self._prm_off
