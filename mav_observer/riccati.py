@@ -620,7 +620,7 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
         _merge(bank, prm)
     bad = (bank.nis_avg > prm.nis_gate * m) & (bank.age_s > 2.0 * prm.nis_window_s)
     if bad.any():
-        _reseed(bank, bad, y, prm)
+        reseed(bank, bad, y, prm)
 
 
 def _walk_levels(q: np.ndarray, prm: BankParams) -> np.ndarray:
@@ -803,9 +803,10 @@ def _select(bank: Bank, keep: np.ndarray) -> None:
     bank.logw = bank.logw - _per_run_logsumexp(bank.logw, bank.owner, runs)[bank.owner]
 
 
-def _reseed(bank: Bank, bad: np.ndarray, y: np.ndarray, prm: BankParams) -> None:
-    """Replace the filters of the runs in ``bad`` by a new bank around the Riccati
-    observer's range (its estimate converges from anywhere)."""
+def reseed(bank: Bank, bad: np.ndarray, y: np.ndarray, prm: BankParams) -> None:
+    """Replace the filters of the runs in ``bad`` (R,) by a new bank around the Riccati
+    observer's range (its estimate converges from anywhere), at their bearings ``y`` (R, n).
+    In place."""
     runs = np.flatnonzero(bad)
     rp = np.linalg.norm(bank.xp[runs], axis=-1)
     centre = np.where(rp > 0.0, rp, bank.r0[runs])

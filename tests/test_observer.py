@@ -862,8 +862,7 @@ def test_a_state_saved_before_the_bias_walk_was_learnt_restores_with_none() -> N
     for key in ("walk_q", "walk_on", "walk_ll", "walk_x", "walk_a", "walk_p"):
         del d["kalman"]["bank"][key]
     restored = BiasObserver.from_dict(d)
-    bank = restored.estimator.bank  # type: ignore[attr-defined]
-    assert bank is not None and bank.walk_q[0] == 0.0
+    assert restored.to_dict()["kalman"]["bank"]["walk_q"] == [0.0]
     assert np.array_equal(restored.estimate.x_m, obs.estimate.x_m)
     d["kalman"]["bank"]["walk_x"] = [[1.0, 2.0]]  # a bad shape is refused, naming it
     with pytest.raises(StateError, match="walk_x"):

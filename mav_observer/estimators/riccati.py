@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from mav_observer import discrete, riccati
+from mav_observer import discrete, riccati, single
 from mav_observer.config import (
     AUTO,
     BEARING_NOISE_PRIOR_DEG,
@@ -71,7 +71,10 @@ class RiccatiEstimator:
 
     def __init__(self, config: ObserverConfig) -> None:
         self.config = config
+        #: the bank, while it has more than one filter (or in other than three dimensions) ...
         self.bank: riccati.Bank | None = None
+        #: ... else its one filter in plain floats (:mod:`mav_observer.single`)
+        self.one: single.Single | None = None
         #: time (s) of the latest bearing applied
         self.t_bearing_s: float | None = None
         #: the velocity's white noise, learnt from its samples (``velocity_noise_mps = "auto"``)
@@ -135,11 +138,23 @@ class RiccatiEstimator:
 
     @property
     def started(self) -> bool:
-        return self.bank is not None
+        return self.bank is not None or self.one is not None
+
+    def _set_bank(self, bank: riccati.Bank) -> None:
+        """Hold ``bank``, as floats when it is down to one filter in three dimensions."""
+        if single.applies(bank):
+            self.bank, self.one = None, single.from_bank(bank)
+        else:
+            self.bank, self.one = bank, None
+
+    def _whole_bank(self) -> riccati.Bank | None:
+        """The bank, whichever form it is held in (a new one for the floats)."""
+        return single.to_bank(self.one) if self.one is not None else self.bank
 
     def start(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         prm = self.params(inputs.velocity_dt_s)
-        self.bank = riccati.bank_start(np.array([y]), np.array([self.config.range_guess_m]), prm)
+        bank = riccati.bank_start(np.array([y]), np.array([self.config.range_guess_m]), prm)
+        self._set_bank(bank)
         self.t_bearing_s = t_s
         self._out = None
 
@@ -148,6 +163,8 @@ class RiccatiEstimator:
         other.__dict__.update(self.__dict__)
         if self.bank is not None:
             other.bank = riccati.copy_bank(self.bank)
+        if self.one is not None:
+            other.one = self.one.copy()
         if self.latency is not None:
             other.latency = self.latency.copy()
         other.settling = replace(self.settling)
@@ -161,7 +178,10 @@ class RiccatiEstimator:
         self, t_s: float, h_s: float, v_mps: list[float], y: list[float] | None, inputs: Inputs
     ) -> list[float]:
         prm = self.params(inputs.velocity_dt_s, chord=inputs.chord_at(t_s))
-        riccati.bank_predict(self.bank, np.array([v_mps]) * h_s, h_s, prm)  # type: ignore[arg-type]
+        if self.one is not None:
+            single.predict(self.one, [c * h_s for c in v_mps], h_s, prm)
+        else:
+            riccati.bank_predict(self.bank, np.array([v_mps]) * h_s, h_s, prm)  # type: ignore[arg-type]
         self._out = None
         a_ref = self._a_ref if self._a_ref is not None else self.output(inputs).a_mps
         return [h_s * v_mps[j] + h_s * a_ref[j] for j in range(len(v_mps))]
@@ -169,13 +189,13 @@ class RiccatiEstimator:
     def update(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         gap = t_s - self.t_bearing_s if self.t_bearing_s is not None else 0.0
         prm = self.params(inputs.velocity_dt_s)
-        bank = self.bank
+        one, bank = self.one, self.bank
+        age_s = one.age_s if one is not None else float(bank.age_s[0])  # type: ignore[union-attr]
         tau = self.bearing_latency_s()
         lat = self.latency
         if prm.learn_walk and lat is not None:
             learning_s = lat.learning_for_s(t_s)
             settled = self.settling.update(t_s, lat.tau_s, learning_s)
-            age_s = float(bank.age_s[0])  # type: ignore[union-attr]
             if learning_s < WALK_AFTER_LATENCY_S and age_s < WALK_HOLD_MAX_S:
                 if self._prm_off is None:
                     self._prm_off = replace(prm, walk_hold=True, walk_hold_nats=math.inf)
@@ -188,20 +208,40 @@ class RiccatiEstimator:
             v = inputs.velocity_at(t_s)
             out = self.output(inputs)
             x, a = out.x_m, out.a_mps
-            if lat is not None and bank.age_s[0] > LATENCY_AFTER_S:  # type: ignore[union-attr]
-                p = out.p
-                var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
+            if lat is not None and age_s > LATENCY_AFTER_S:
+                if one is not None:
+                    var_x = one.p[0] + one.p[7] + one.p[14]
+                else:
+                    p = out.p
+                    var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
                 if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
-                    var = float(bank.noise_var_rad2(prm)[0])  # type: ignore[union-attr]
-                    lat.observe(t_s, x, a, v, y, var)
+                    lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))
             if tau != 0.0:  # the line of sight tau earlier, brought to t_s
                 y = advance(y, x, a, v, tau)
-        riccati.bank_update(bank, np.array([y]), gap, prm)  # type: ignore[arg-type]
+        if one is not None:
+            if single.update(one, y, gap, prm):  # inconsistent: a re-acquisition
+                bank = single.to_bank(one)
+                riccati.reseed(bank, np.array([True]), np.array([y]), prm)
+                self._set_bank(bank)
+        else:
+            riccati.bank_update(bank, np.array([y]), gap, prm)  # type: ignore[arg-type]
+            self._set_bank(bank)  # type: ignore[arg-type]
         self.t_bearing_s = t_s
         self._out = None
 
+    def _noise_var_rad2(self, prm: riccati.BankParams) -> float:
+        """The bearing noise variance in use (rad^2)."""
+        if self.one is not None:
+            return self.one.noise_var_rad2(prm)
+        return float(self.bank.noise_var_rad2(prm)[0])  # type: ignore[union-attr]
+
     def output(self, inputs: Inputs | None) -> Output:
         if self._out is None:
+            one = self.one
+            if one is not None:
+                n2 = 2 * single.N
+                self._out = Output(one.x[:], one.a[:], np.array(one.p).reshape(n2, n2))
+                return self._out
             if self.bank is None:
                 n = self.config.n
                 return Output([0.0] * n, [0.0] * n, np.full((2 * n, 2 * n), np.inf))
@@ -225,7 +265,7 @@ class RiccatiEstimator:
         return pxx
 
     def cond(self) -> float:
-        if self.bank is None:
+        if not self.started:
             return 1.0
         n = self.config.n
         p = self.output(None).p
@@ -233,14 +273,19 @@ class RiccatiEstimator:
         return ev[-1] / ev[0] if ev[0] > 0.0 else math.inf
 
     def nis(self) -> float | None:
+        if self.one is not None:
+            return self.one.nis_avg / (self.config.n - 1)
         if self.bank is None:
             return None
         return float(self.bank.nis_avg[0]) / (self.config.n - 1)
 
     def noise(self, inputs: Inputs) -> NoiseLevels | None:
         prm = self.params(inputs.velocity_dt_s)
-        bank = self.bank
-        if bank is None:
+        bank, one = self.bank, self.one
+        if one is not None:
+            var, bearings, outliers = one.noise_var_rad2(prm), one.bearings, one.outliers
+            reseeds, q_a = one.reseeds, one.bias_walk(prm)
+        elif bank is None:
             var, bearings, outliers, reseeds = prm.sigma_rad**2, 0, 0, 0
             q_a = prm.q_a
         else:
@@ -264,6 +309,8 @@ class RiccatiEstimator:
 
     @property
     def reacquisitions(self) -> int:
+        if self.one is not None:
+            return self.one.reseeds
         return 0 if self.bank is None else int(self.bank.reseeds[0])
 
     def observe_velocity(self, t_s: float, v_mps: list[float]) -> None:
@@ -271,21 +318,25 @@ class RiccatiEstimator:
             self.vnoise.update(t_s, v_mps)
 
     def shift(self, dx_m: list[float]) -> None:
+        self._out = None
+        if self.one is not None:
+            self.one.shift(dx_m)
         if self.bank is None:
             return
         d = np.array(dx_m)
         self.bank.x = self.bank.x + d
         self.bank.xp = self.bank.xp + d
-        self._out = None
+        self.bank.walk_x = self.bank.walk_x + d
 
     def to_dict(self) -> dict[str, Any]:
+        bank = self._whole_bank()
         return {
             "velocity_noise": None if self.vnoise is None else self.vnoise.to_dict(),
             "bearing_latency": None if self.latency is None else self.latency.to_dict(),
             "kalman": None
-            if self.bank is None
+            if bank is None
             else {
-                "bank": {f.name: getattr(self.bank, f.name).tolist() for f in fields(riccati.Bank)},
+                "bank": {f.name: getattr(bank, f.name).tolist() for f in fields(riccati.Bank)},
                 "t_bearing": self.t_bearing_s,
             },
         }
@@ -305,7 +356,8 @@ class RiccatiEstimator:
                 raise StateError(str(exc)) from exc
         kal = d.get("kalman")
         if kal is not None:
-            self.bank, self.t_bearing_s = _bank_from_dict(kal, self.config.n)
+            bank, self.t_bearing_s = _bank_from_dict(kal, self.config.n)
+            self._set_bank(bank)
         elif started:
             raise StateError("observer state of a started riccati estimator has no 'kalman'")
         self._out = None
