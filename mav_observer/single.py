@@ -4,12 +4,13 @@ filter, in three dimensions (pure).
 Once the hypotheses of :mod:`mav_observer.riccati` have been pruned and merged to one, a
 step is four small Kalman filters (the filter, its Riccati observer and, while the bias's
 random walk is learnt, two probes) on 6-vectors. numpy's per-call overhead is most of what
-numpy costs there (a 6x6 product of lists is faster than the array call that does it), so
-this module repeats :func:`~mav_observer.riccati.bank_predict` and
+numpy costs there, so this module repeats :func:`~mav_observer.riccati.bank_predict` and
 :func:`~mav_observer.riccati.bank_update` for that case on lists: the same arithmetic, the
 same decisions, equal to rounding (``tests/test_single.py`` runs both on the same streams
 and compares every estimate). :func:`from_bank` and :func:`to_bank` convert; a step that
-needs more than one filter (a re-acquisition) goes back to the bank.
+needs more than one filter (a re-acquisition) goes back to the bank. The covariance
+updates are straight-line code on the upper triangle, mirrored (loops over the entries cost
+twice as much).
 
 The state: ``x``, ``a`` (lists of 3, m and m/s), ``p`` (the 6x6 covariance of ``[x, a]``,
 a flat row-major list of 36: m^2, m^2/s, m^2/s^2). No I/O, no clock.
@@ -27,9 +28,6 @@ from mav_observer import riccati
 N = 3
 #: tangent directions per bearing
 M = N - 1
-#: the offsets of the covariance's rows, and its upper triangle ``(i, j, 6 i + j, 6 j + i)``
-_ROWS = tuple(range(0, 4 * N * N, 2 * N))
-_UPPER = tuple((i, j, 6 * i + j, 6 * j + i) for i in range(2 * N) for j in range(i, 2 * N))
 
 
 @dataclass
@@ -143,22 +141,47 @@ def predict_one(
     q0 = q_x * h + q_a * h * hh / 3.0
     q1 = q_a * hh / 2.0
     q2 = q_a * h
-    p2 = p[:]
-    for i in range(N):
-        r = 6 * i
-        s = 6 * (3 + i)
-        for j in range(N):
-            paa = p[s + 3 + j]
-            pxa = p[r + 3 + j]
-            pax = p[s + j]
-            p2[r + j] = p[r + j] + h * (pxa + pax) + hh * paa
-            p2[r + 3 + j] = pxa + h * paa
-            p2[s + j] = pax + h * paa
-    for i in range(N):
-        p2[7 * i] += q0
-        p2[7 * i + 3] += q1
-        p2[7 * i + 18] += q1
-        p2[7 * i + 21] += q2
+    # fmt: off
+    (
+        p00, p01, p02, p03, p04, p05,
+        _, p11, p12, p13, p14, p15,
+        _, _, p22, p23, p24, p25,
+        _, _, _, p33, p34, p35,
+        _, _, _, _, p44, p45,
+        _, _, _, _, _, p55,
+    ) = p
+    # fmt: on
+    m00 = p00 + h * (p03 + p03) + hh * p33 + q0
+    m01 = p01 + h * (p04 + p13) + hh * p34
+    m02 = p02 + h * (p05 + p23) + hh * p35
+    m03 = p03 + h * p33 + q1
+    m04 = p04 + h * p34
+    m05 = p05 + h * p35
+    m11 = p11 + h * (p14 + p14) + hh * p44 + q0
+    m12 = p12 + h * (p15 + p24) + hh * p45
+    m13 = p13 + h * p34
+    m14 = p14 + h * p44 + q1
+    m15 = p15 + h * p45
+    m22 = p22 + h * (p25 + p25) + hh * p55 + q0
+    m23 = p23 + h * p35
+    m24 = p24 + h * p45
+    m25 = p25 + h * p55 + q1
+    m33 = p33 + q2
+    m34 = p34
+    m35 = p35
+    m44 = p44 + q2
+    m45 = p45
+    m55 = p55 + q2
+    # fmt: off
+    p2 = [
+        m00, m01, m02, m03, m04, m05,
+        m01, m11, m12, m13, m14, m15,
+        m02, m12, m22, m23, m24, m25,
+        m03, m13, m23, m33, m34, m35,
+        m04, m14, m24, m34, m44, m45,
+        m05, m15, m25, m35, m45, m55,
+    ]
+    # fmt: on
     return x2, a[:], p2
 
 
@@ -187,11 +210,8 @@ def update_one(
     u0 = d0 + (1.0 if d0 >= 0.0 else -1.0)
     beta = 2.0 / (u0 * u0 + d1 * d1 + d2 * d2)
     bu0, bu1, bu2 = beta * u0, beta * d1, beta * d2
-    e = (
-        (-bu0 * d1, 1.0 - bu1 * d1, -bu2 * d1),
-        (-bu0 * d2, -bu1 * d2, 1.0 - bu2 * d2),
-    )
-    ea, eb = e
+    ea = (-bu0 * d1, 1.0 - bu1 * d1, -bu2 * d1)
+    eb = (-bu0 * d2, -bu1 * d2, 1.0 - bu2 * d2)
     ha0, ha1, ha2 = ea[0] / rw, ea[1] / rw, ea[2] / rw
     hb0, hb1, hb2 = eb[0] / rw, eb[1] / rw, eb[2] / rw
     if trk:
@@ -200,12 +220,32 @@ def update_one(
     else:
         z0 = -(ha0 * x0 + ha1 * x1 + ha2 * x2)
         z1 = -(hb0 * x0 + hb1 * x1 + hb2 * x2)
-    # the columns of P H^T (6 x 2); H P H^T (2 x 2)
-    pht0 = [p[r] * ha0 + p[r + 1] * ha1 + p[r + 2] * ha2 for r in _ROWS]
-    pht1 = [p[r] * hb0 + p[r + 1] * hb1 + p[r + 2] * hb2 for r in _ROWS]
-    h00 = ha0 * pht0[0] + ha1 * pht0[1] + ha2 * pht0[2]
-    h01 = ha0 * pht1[0] + ha1 * pht1[1] + ha2 * pht1[2]
-    h11 = hb0 * pht1[0] + hb1 * pht1[1] + hb2 * pht1[2]
+    # the columns q, w of P H^T (6 x 2; the upper triangle of P read), H P H^T (2 x 2)
+    # fmt: off
+    (
+        p00, p01, p02, p03, p04, p05,
+        _, p11, p12, p13, p14, p15,
+        _, _, p22, p23, p24, p25,
+        _, _, _, p33, p34, p35,
+        _, _, _, _, p44, p45,
+        _, _, _, _, _, p55,
+    ) = p
+    # fmt: on
+    q0 = p00 * ha0 + p01 * ha1 + p02 * ha2
+    q1 = p01 * ha0 + p11 * ha1 + p12 * ha2
+    q2 = p02 * ha0 + p12 * ha1 + p22 * ha2
+    q3 = p03 * ha0 + p13 * ha1 + p23 * ha2
+    q4 = p04 * ha0 + p14 * ha1 + p24 * ha2
+    q5 = p05 * ha0 + p15 * ha1 + p25 * ha2
+    w0 = p00 * hb0 + p01 * hb1 + p02 * hb2
+    w1 = p01 * hb0 + p11 * hb1 + p12 * hb2
+    w2 = p02 * hb0 + p12 * hb1 + p22 * hb2
+    w3 = p03 * hb0 + p13 * hb1 + p23 * hb2
+    w4 = p04 * hb0 + p14 * hb1 + p24 * hb2
+    w5 = p05 * hb0 + p15 * hb1 + p25 * hb2
+    h00 = ha0 * q0 + ha1 * q1 + ha2 * q2
+    h01 = ha0 * w0 + ha1 * w1 + ha2 * w2
+    h11 = hb0 * w0 + hb1 * w1 + hb2 * w2
     s00, s11 = h00 + sig2_rad2, h11 + sig2_rad2
     det = s00 * s11 - h01 * h01
     logdet = math.log(det)
@@ -219,21 +259,56 @@ def update_one(
         s00, s11 = h00 + r_eff, h11 + r_eff
         det = s00 * s11 - h01 * h01
         i00, i11, i01 = s11 / det, s00 / det, -h01 / det
-    # K = P H^T S^-1 by columns; P - K (P H^T)^T, its upper triangle mirrored
-    k0 = [u * i00 + v * i01 for u, v in zip(pht0, pht1, strict=True)]
-    k1 = [u * i01 + v * i11 for u, v in zip(pht0, pht1, strict=True)]
-    ds = [u * z0 + v * z1 for u, v in zip(k0, k1, strict=True)]
-    p2 = p[:]
-    for i, j, ij, ji in _UPPER:
-        v = p[ij] - (k0[i] * pht0[j] + k1[i] * pht1[j])
-        p2[ij] = v
-        p2[ji] = v
+    # K = P H^T S^-1 by columns (k, l); P - K (P H^T)^T, its upper triangle mirrored
+    k0 = q0 * i00 + w0 * i01
+    l0 = q0 * i01 + w0 * i11
+    k1 = q1 * i00 + w1 * i01
+    l1 = q1 * i01 + w1 * i11
+    k2 = q2 * i00 + w2 * i01
+    l2 = q2 * i01 + w2 * i11
+    k3 = q3 * i00 + w3 * i01
+    l3 = q3 * i01 + w3 * i11
+    k4 = q4 * i00 + w4 * i01
+    l4 = q4 * i01 + w4 * i11
+    k5 = q5 * i00 + w5 * i01
+    l5 = q5 * i01 + w5 * i11
+    n00 = p00 - (k0 * q0 + l0 * w0)
+    n01 = p01 - (k0 * q1 + l0 * w1)
+    n02 = p02 - (k0 * q2 + l0 * w2)
+    n03 = p03 - (k0 * q3 + l0 * w3)
+    n04 = p04 - (k0 * q4 + l0 * w4)
+    n05 = p05 - (k0 * q5 + l0 * w5)
+    n11 = p11 - (k1 * q1 + l1 * w1)
+    n12 = p12 - (k1 * q2 + l1 * w2)
+    n13 = p13 - (k1 * q3 + l1 * w3)
+    n14 = p14 - (k1 * q4 + l1 * w4)
+    n15 = p15 - (k1 * q5 + l1 * w5)
+    n22 = p22 - (k2 * q2 + l2 * w2)
+    n23 = p23 - (k2 * q3 + l2 * w3)
+    n24 = p24 - (k2 * q4 + l2 * w4)
+    n25 = p25 - (k2 * q5 + l2 * w5)
+    n33 = p33 - (k3 * q3 + l3 * w3)
+    n34 = p34 - (k3 * q4 + l3 * w4)
+    n35 = p35 - (k3 * q5 + l3 * w5)
+    n44 = p44 - (k4 * q4 + l4 * w4)
+    n45 = p45 - (k4 * q5 + l4 * w5)
+    n55 = p55 - (k5 * q5 + l5 * w5)
+    # fmt: off
+    p2 = [
+        n00, n01, n02, n03, n04, n05,
+        n01, n11, n12, n13, n14, n15,
+        n02, n12, n22, n23, n24, n25,
+        n03, n13, n23, n33, n34, n35,
+        n04, n14, n24, n34, n44, n45,
+        n05, n15, n25, n35, n45, n55,
+    ]
+    # fmt: on
     si0 = i00 * z0 + i01 * z1
     si1 = i01 * z0 + i11 * z1
     stat = r_eff * (M - r_eff * ((i00 + i11) - (si0 * si0 + si1 * si1)))
     return (
-        [x0 + ds[0], x1 + ds[1], x2 + ds[2]],
-        [a[0] + ds[3], a[1] + ds[4], a[2] + ds[5]],
+        [x0 + k0 * z0 + l0 * z1, x1 + k1 * z0 + l1 * z1, x2 + k2 * z0 + l2 * z1],
+        [a[0] + k3 * z0 + l3 * z1, a[1] + k4 * z0 + l4 * z1, a[2] + k5 * z0 + l5 * z1],
         p2,
         nis,
         logdet,
