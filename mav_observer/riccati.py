@@ -471,9 +471,13 @@ def bank_start(y0: np.ndarray, r0_m: np.ndarray, prm: BankParams) -> Bank:
     )  # fmt: skip
 
 
-def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> None:
+def bank_predict(
+    bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams, q_x: float | None = None
+) -> None:
     """Propagate every filter and observer over ``h_s`` s; ``dx_m`` (R, n) is each run's
-    integral of ``v`` over the step (m). In place."""
+    integral of ``v`` over the step (m); ``q_x`` (m^2/s) instead of ``prm.q_x`` when given.
+    In place."""
+    q_x = prm.q_x if q_x is None else q_x
     f = len(bank.owner)  # one call for the filters, the observers and the probes
     if prm.learn_walk and bank.walk_on.any():  # the probes only while they run
         q_run = bank.walk_q
@@ -485,7 +489,7 @@ def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> N
             np.concatenate((bank.p, bank.pp, bank.walk_p.reshape(-1, 2 * n, 2 * n))),
             np.concatenate((dx_m[bank.owner], dx_m, np.repeat(dx_m, 2, axis=0))),
             h_s,
-            prm.q_x,
+            q_x,
             q_a,
         )
         g = f + bank.runs
@@ -502,7 +506,7 @@ def bank_predict(bank: Bank, dx_m: np.ndarray, h_s: float, prm: BankParams) -> N
             np.concatenate((bank.p, bank.pp)),
             np.concatenate((dx_m[bank.owner], dx_m)),
             h_s,
-            prm.q_x,
+            q_x,
             prm.q_a,
         )
     bank.x, bank.xp, bank.a, bank.ap, bank.p, bank.pp = x[:f], x[f:], a[:f], a[f:], p[:f], p[f:]

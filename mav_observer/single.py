@@ -324,16 +324,19 @@ def walk_levels(q: float, prm: riccati.BankParams) -> tuple[float, float]:
     return (0.0 if lo < prm.walk_min else lo), hi
 
 
-def predict(s: Single, dx_m: list[float], h_s: float, prm: riccati.BankParams) -> None:
+def predict(
+    s: Single, dx_m: list[float], h_s: float, prm: riccati.BankParams, q_x: float | None = None
+) -> None:
     """:func:`~mav_observer.riccati.bank_predict` of the :class:`Single`. In place."""
+    q_x = prm.q_x if q_x is None else q_x
     probes = prm.learn_walk and s.walk_on > 0.0
     q = s.walk_q if probes else prm.q_a
-    s.x, s.a, s.p = predict_one(s.x, s.a, s.p, dx_m, h_s, prm.q_x, q)
-    s.xp, s.ap, s.pp = predict_one(s.xp, s.ap, s.pp, dx_m, h_s, prm.q_x, q)
+    s.x, s.a, s.p = predict_one(s.x, s.a, s.p, dx_m, h_s, q_x, q)
+    s.xp, s.ap, s.pp = predict_one(s.xp, s.ap, s.pp, dx_m, h_s, q_x, q)
     if probes:
         for k, qk in enumerate(walk_levels(q, prm)):
             s.walk_x[k], s.walk_a[k], s.walk_p[k] = predict_one(
-                s.walk_x[k], s.walk_a[k], s.walk_p[k], dx_m, h_s, prm.q_x, qk
+                s.walk_x[k], s.walk_a[k], s.walk_p[k], dx_m, h_s, q_x, qk
             )
     s.age_s += h_s
 

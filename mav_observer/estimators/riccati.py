@@ -85,9 +85,8 @@ class RiccatiEstimator:
         )
         self._out: Output | None = None  # the estimate, cached
         self._a_ref: list[float] | None = None  # the open-loop reference of a working copy
-        self._prm_key: tuple[float, float] | None = None
+        self._prm_key: float | None = None
         self._prm: riccati.BankParams | None = None
-        self._prm_chord: riccati.BankParams | None = None
         self._prm_held: riccati.BankParams | None = None
         self._prm_off: riccati.BankParams | None = None
         #: whether the latency learnt has settled (the walk's hold)
@@ -106,24 +105,24 @@ class RiccatiEstimator:
             return self.vnoise.sigma_mps
         return float(self.config.velocity_noise_mps)
 
-    def params(self, velocity_dt_s: float, *, chord: bool = False) -> riccati.BankParams:
-        """The bank's settings with the velocity's sample interval ``velocity_dt_s`` (s) and
-        the velocity noise in use (cached while both are unchanged); ``chord``: for an
-        interval whose displacement comes from the vehicle's positions, which have the
-        positions' small error (:data:`CHORD_NOISE_MPS`), not the velocity's."""
-        key = (velocity_dt_s, self.velocity_noise_mps())
-        if key != self._prm_key or self._prm is None:
-            self._prm = self.config.bank_params(velocity_dt_s, key[1])
-            self._prm_chord = None
+    def params(self, velocity_dt_s: float) -> riccati.BankParams:
+        """The bank's settings with the velocity's sample interval ``velocity_dt_s`` (s),
+        cached while it is unchanged; their ``q_x`` is not the one in use (the velocity noise
+        is learnt at every sample): :meth:`q_x_m2ps` is."""
+        if velocity_dt_s != self._prm_key or self._prm is None:
+            self._prm = self.config.bank_params(velocity_dt_s)
             self._prm_held = None
             self._prm_off = None
-            self._prm_key = key
-        if not chord:
-            return self._prm
-        if self._prm_chord is None:
-            prm = self._prm
-            self._prm_chord = replace(prm, q_x=min(prm.q_x, CHORD_NOISE_MPS**2 * velocity_dt_s))
-        return self._prm_chord
+            self._prm_key = velocity_dt_s
+        return self._prm
+
+    def q_x_m2ps(self, velocity_dt_s: float, *, chord: bool = False) -> float:
+        """The process noise on ``x`` (m^2/s) from the velocity noise in use and its sample
+        interval ``velocity_dt_s`` (s); ``chord``: for an interval whose displacement comes
+        from the vehicle's positions, which have the positions' small error
+        (:data:`CHORD_NOISE_MPS`), not the velocity's."""
+        q_x = self.velocity_noise_mps() ** 2 * velocity_dt_s
+        return min(q_x, CHORD_NOISE_MPS**2 * velocity_dt_s) if chord else q_x
 
     def bearing_latency_s(self) -> float:
         """The bearings' latency in use (s): learnt or told."""
@@ -177,11 +176,14 @@ class RiccatiEstimator:
     def predict(
         self, t_s: float, h_s: float, v_mps: list[float], y: list[float] | None, inputs: Inputs
     ) -> list[float]:
-        prm = self.params(inputs.velocity_dt_s, chord=inputs.chord_at(t_s))
+        dt_s = inputs.velocity_dt_s
+        prm = self.params(dt_s)
+        q_x = self.q_x_m2ps(dt_s, chord=inputs.chord_at(t_s))
         if self.one is not None:
-            single.predict(self.one, [c * h_s for c in v_mps], h_s, prm)
+            single.predict(self.one, [c * h_s for c in v_mps], h_s, prm, q_x)
         else:
-            riccati.bank_predict(self.bank, np.array([v_mps]) * h_s, h_s, prm)  # type: ignore[arg-type]
+            bank = self.bank
+            riccati.bank_predict(bank, np.array([v_mps]) * h_s, h_s, prm, q_x)  # type: ignore[arg-type]
         self._out = None
         a_ref = self._a_ref if self._a_ref is not None else self.output(inputs).a_mps
         return [h_s * v_mps[j] + h_s * a_ref[j] for j in range(len(v_mps))]
