@@ -120,3 +120,12 @@ def test_a_latency_settles_once_learning_long_enough_and_no_longer_moving() -> N
     assert (s.t_ref_s, s.tau_ref_s) == (90.0, 0.2)
     assert s.update(105.0, 0.0, 105.0)  # mid-window: the verdict kept
     assert s.update(110.0, 0.2, 110.0)  # over the window from 90 s it did not move
+
+
+def test_a_copy_of_the_settling_is_independent() -> None:
+    s = Settling(window_s=20.0, step_s=0.003, after_s=30.0)
+    s.update(0.0, 0.1, 40.0)
+    c = s.copy()
+    assert c == s
+    assert c.update(25.0, 0.1, 65.0) is True
+    assert s.settled is False and s.t_ref_s == 0.0

@@ -85,7 +85,6 @@ class RiccatiEstimator:
         )
         self._out: Output | None = None  # the estimate, cached
         self._a_ref: list[float] | None = None  # the open-loop reference of a working copy
-        self._prm_key: float | None = None
         self._prm: riccati.BankParams | None = None
         self._prm_held: riccati.BankParams | None = None
         self._prm_off: riccati.BankParams | None = None
@@ -105,15 +104,12 @@ class RiccatiEstimator:
             return self.vnoise.sigma_mps
         return float(self.config.velocity_noise_mps)
 
-    def params(self, velocity_dt_s: float) -> riccati.BankParams:
-        """The bank's settings with the velocity's sample interval ``velocity_dt_s`` (s),
-        cached while it is unchanged; their ``q_x`` is not the one in use (the velocity noise
-        is learnt at every sample): :meth:`q_x_m2ps` is."""
-        if velocity_dt_s != self._prm_key or self._prm is None:
-            self._prm = self.config.bank_params(velocity_dt_s)
-            self._prm_held = None
-            self._prm_off = None
-            self._prm_key = velocity_dt_s
+    def params(self) -> riccati.BankParams:
+        """The bank's settings (made once); their ``q_x`` is not the one in use (it moves
+        with the velocity's sample interval and its noise, learnt at every sample):
+        :meth:`q_x_m2ps` is."""
+        if self._prm is None:
+            self._prm = self.config.bank_params(1.0)
         return self._prm
 
     def q_x_m2ps(self, velocity_dt_s: float, *, chord: bool = False) -> float:
@@ -151,7 +147,7 @@ class RiccatiEstimator:
         return single.to_bank(self.one) if self.one is not None else self.bank
 
     def start(self, t_s: float, y: list[float], inputs: Inputs) -> None:
-        prm = self.params(inputs.velocity_dt_s)
+        prm = self.params()
         bank = riccati.bank_start(np.array([y]), np.array([self.config.range_guess_m]), prm)
         self._set_bank(bank)
         self.t_bearing_s = t_s
@@ -166,7 +162,7 @@ class RiccatiEstimator:
             other.one = self.one.copy()
         if self.latency is not None:
             other.latency = self.latency.copy()
-        other.settling = replace(self.settling)
+        other.settling = self.settling.copy()
         other._a_ref = self.output(None).a_mps  # type: ignore[arg-type]
         return other
 
@@ -177,7 +173,7 @@ class RiccatiEstimator:
         self, t_s: float, h_s: float, v_mps: list[float], y: list[float] | None, inputs: Inputs
     ) -> list[float]:
         dt_s = inputs.velocity_dt_s
-        prm = self.params(dt_s)
+        prm = self.params()
         q_x = self.q_x_m2ps(dt_s, chord=inputs.chord_at(t_s))
         if self.one is not None:
             single.predict(self.one, [c * h_s for c in v_mps], h_s, prm, q_x)
@@ -190,7 +186,7 @@ class RiccatiEstimator:
 
     def update(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         gap = t_s - self.t_bearing_s if self.t_bearing_s is not None else 0.0
-        prm = self.params(inputs.velocity_dt_s)
+        prm = self.params()
         one, bank = self.one, self.bank
         age_s = one.age_s if one is not None else float(bank.age_s[0])  # type: ignore[union-attr]
         tau = self.bearing_latency_s()
@@ -282,7 +278,7 @@ class RiccatiEstimator:
         return float(self.bank.nis_avg[0]) / (self.config.n - 1)
 
     def noise(self, inputs: Inputs) -> NoiseLevels | None:
-        prm = self.params(inputs.velocity_dt_s)
+        prm = self.params()
         bank, one = self.bank, self.one
         if one is not None:
             var, bearings, outliers = one.noise_var_rad2(prm), one.bearings, one.outliers
