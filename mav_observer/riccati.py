@@ -322,9 +322,9 @@ class BankParams:
       ``walk_leave_nats`` (its smallest level mostly fits a bearing error correlated over
       seconds, and costs a constant-bias run 2x to 4x the bound). ``walk_hold``: the
       bearings' latency is still being learnt (a bearing error correlated over seconds is
-      otherwise learnt as a wandering bias, and the two feed each other): moving the level
-      up takes a lead of at least ``walk_hold_nats``; ``inf``: no probe runs, the level in
-      use kept.
+      otherwise learnt as a wandering bias, and the two feed each other): leaving 0 takes a
+      lead of at least ``walk_hold_nats`` (a level above 0 moves with the ordinary bars: the
+      wandering bias has been seen); ``inf``: no probe runs, the level in use kept.
     """
 
     sigma_rad: float
@@ -705,8 +705,8 @@ def _walk_step(
     lead = rho * bank.walk_ll + diff
     bank.walk_ll = np.where(on[:, None], lead, 0.0)
     bar = np.where(bank.walk_q > 0.0, prm.walk_up_nats, prm.walk_leave_nats)
-    if prm.walk_hold:
-        bar = np.maximum(bar, prm.walk_hold_nats)
+    if prm.walk_hold:  # leaving 0 is held
+        bar = np.where(bank.walk_q > 0.0, bar, np.maximum(bar, prm.walk_hold_nats))
     up = on & (lead[:, 1] > bar) & (bank.walk_q < prm.walk_max)
     down = on & ~up & (lead[:, 0] > prm.walk_down_nats) & (bank.walk_q > 0.0)
     levels = _walk_levels(bank.walk_q, prm)
@@ -744,7 +744,7 @@ def _walk_step_one(
     q = float(bank.walk_q[0])
     k = -1
     bar = prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats
-    if prm.walk_hold:
+    if prm.walk_hold and q == 0.0:  # leaving 0 is held
         bar = max(bar, prm.walk_hold_nats)
     if lead_hi > bar and q < prm.walk_max:
         k = 1

@@ -416,7 +416,7 @@ def _walk_step(
     lead_hi = rho * s.walk_ll[1] + diff_hi
     q = s.walk_q
     bar = prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats
-    if prm.walk_hold:
+    if prm.walk_hold and q == 0.0:  # leaving 0 is held
         bar = max(bar, prm.walk_hold_nats)
     if lead_hi > bar and q < prm.walk_max:
         k = 1

@@ -94,9 +94,15 @@ def test_acquisition_update_needs_no_estimate_to_converge() -> None:
 
 
 def _bank_run(
-    y: np.ndarray, v: np.ndarray, r0: np.ndarray, prm: riccati.BankParams, dt: float
+    y: np.ndarray,
+    v: np.ndarray,
+    r0: np.ndarray,
+    prm: riccati.BankParams,
+    dt: float,
+    walk_q0: float = 0.0,
 ) -> riccati.Bank:
     bank = riccati.bank_start(y[:, 0], r0, prm)
+    bank.walk_q[:] = walk_q0  # the bias walk's level at the start (m^2/s^3)
     for k in range(1, y.shape[1]):
         riccati.bank_predict(bank, 0.5 * (v[:, k - 1] + v[:, k]) * dt, dt, prm)
         riccati.bank_update(bank, y[:, k], dt, prm)
@@ -345,6 +351,7 @@ def _walking_bias_run(
     duration_s: float = 240.0,
     dt: float = 0.05,
     outliers: float = 0.0,
+    walk_q0: float = 0.0,
     **prm_kw: float | bool,
 ) -> tuple[riccati.Bank, riccati.BankParams, np.ndarray]:
     """Orbit, 0.5 deg bearings (the noise learnt), a bias that is a random walk of intensity
@@ -368,7 +375,7 @@ def _walking_bias_run(
         **prm_kw,  # type: ignore[arg-type]
     )
     vv = np.broadcast_to(v, (runs, *v.shape))
-    bank = _bank_run(y, vv, np.full(runs, float(np.linalg.norm(xs[0]))), prm, dt)
+    bank = _bank_run(y, vv, np.full(runs, float(np.linalg.norm(xs[0]))), prm, dt, walk_q0)
     return bank, prm, xt[:, -1]
 
 
@@ -398,6 +405,16 @@ def test_the_bias_walk_waits_while_held_and_leaving_zero_takes_the_leave_bar() -
     assert np.all(bank.bias_walk(prm) > 0.0), bank.bias_walk(prm)
     bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_leave_nats=1e9)
     assert np.all(bank.bias_walk(prm) == 0.0) and bank.walk_on.all()
+
+
+def test_the_hold_guards_leaving_zero_only() -> None:
+    """Held with a bar no lead reaches: from 0 the walk stays 0; from a level above 0 (a
+    wandering bias already seen) it moves with the ordinary bar, up toward the truth."""
+    never = {"walk_hold": True, "walk_hold_nats": 1e9}
+    bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, **never)
+    assert np.all(bank.bias_walk(prm) == 0.0) and bank.walk_on.all()
+    bank, prm, _ = _walking_bias_run(1e-4, 31, 2, duration_s=120.0, walk_q0=1e-6, **never)
+    assert np.all(bank.bias_walk(prm) >= 1.6e-5), bank.bias_walk(prm)
 
 
 def test_gross_bearing_errors_do_not_make_the_bias_walk() -> None:
