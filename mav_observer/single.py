@@ -1,19 +1,21 @@
-"""The riccati bank's most common case in plain floats: one run whose bank is down to one
-filter, in three dimensions (pure).
+"""One run of the riccati bank in plain floats, in three dimensions (pure): the service's
+case, one estimator per target.
 
-Once the hypotheses of :mod:`mav_observer.riccati` have been pruned and merged to one, a
-step is four small Kalman filters (the filter, its Riccati observer and, while the bias's
-random walk is learnt, two probes) on 6-vectors. numpy's per-call overhead is most of what
-numpy costs there, so this module repeats :func:`~mav_observer.riccati.bank_predict` and
-:func:`~mav_observer.riccati.bank_update` for that case on lists: the same arithmetic, the
-same decisions, equal to rounding (``tests/test_single.py`` runs both on the same streams
-and compares every estimate). :func:`from_bank` and :func:`to_bank` convert; a step that
-needs more than one filter (a re-acquisition) goes back to the bank. The covariance
+A run is a few small Kalman filters on 6-vectors: the hypotheses (seven at the start, one
+once they have been pruned and merged), the Riccati observer and, while the bias's random
+walk is learnt, two probes. numpy's per-call overhead is most of what numpy costs there, so
+this module repeats :func:`~mav_observer.riccati.bank_predict`,
+:func:`~mav_observer.riccati.bank_update` and :func:`~mav_observer.riccati.bank_estimate`
+for one run on lists: the same arithmetic, the same decisions, equal to rounding
+(``tests/test_single.py`` runs both on the same streams and compares every estimate).
+:func:`from_bank` and :func:`to_bank` convert; a re-seeding (a re-acquisition, rare) is done
+by the bank's :func:`~mav_observer.riccati.reseed` on the converted run. The covariance
 updates are straight-line code on the upper triangle, mirrored (loops over the entries cost
-twice as much).
+twice as much). The batched numpy bank stays for the Monte Carlo harness (a thousand runs at
+once).
 
-The state: ``x``, ``a`` (lists of 3, m and m/s), ``p`` (the 6x6 covariance of ``[x, a]``,
-a flat row-major list of 36: m^2, m^2/s, m^2/s^2). No I/O, no clock.
+A filter: ``x``, ``a`` (lists of 3, m and m/s), ``p`` (the 6x6 covariance of ``[x, a]``, a
+flat row-major list of 36: m^2, m^2/s, m^2/s^2). No I/O, no clock.
 """
 
 from __future__ import annotations
@@ -32,14 +34,15 @@ M = N - 1
 
 @dataclass
 class Single:
-    """One run of :class:`~mav_observer.riccati.Bank` with one filter, the fields of the
-    bank as floats and lists (see there): the filter ``x``, ``a``, ``p``; the Riccati
-    observer ``xp``, ``ap``, ``pp``; the probes ``walk_x``, ``walk_a``, ``walk_p`` (two
-    each) and the run's scalars."""
+    """One run of :class:`~mav_observer.riccati.Bank`, the fields of the bank as floats and
+    lists (see there): the hypotheses' ``x``, ``a``, ``p``, ``logw`` (one entry per filter,
+    the heaviest not necessarily first); the Riccati observer ``xp``, ``ap``, ``pp``; the
+    probes ``walk_x``, ``walk_a``, ``walk_p`` (two each) and the run's scalars."""
 
-    x: list[float]
-    a: list[float]
-    p: list[float]
+    x: list[list[float]]
+    a: list[list[float]]
+    p: list[list[float]]
+    logw: list[float]
     r0: float
     xp: list[float]
     ap: list[float]
@@ -73,7 +76,8 @@ class Single:
     def copy(self) -> Single:
         """A copy that shares no list with this one."""
         return Single(
-            self.x[:], self.a[:], self.p[:], self.r0, self.xp[:], self.ap[:], self.pp[:],
+            [v[:] for v in self.x], [v[:] for v in self.a], [v[:] for v in self.p],
+            self.logw[:], self.r0, self.xp[:], self.ap[:], self.pp[:],
             self.nis_avg, self.age_s, self.reseeds, self.noise_alpha, self.noise_beta,
             self.outliers, self.bearings, self.inlier_avg, self.walk_q, self.walk_on,
             self.walk_ll[:], [v[:] for v in self.walk_x], [v[:] for v in self.walk_a],
@@ -81,21 +85,48 @@ class Single:
         )  # fmt: skip
 
     def shift(self, dx_m: list[float]) -> None:
-        """Move every position (filter, observer, probes) by ``dx_m`` (m). In place."""
-        for v in (self.x, self.xp, *self.walk_x):
+        """Move every position (filters, observer, probes) by ``dx_m`` (m). In place."""
+        for v in (*self.x, self.xp, *self.walk_x):
             for i in range(N):
                 v[i] += dx_m[i]
 
+    def estimate(self) -> tuple[list[float], list[float], list[float]]:
+        """The run's estimate ``(x, a, p)`` (new lists): the mixture's mean and covariance
+        (spread of the hypotheses included), as :func:`~mav_observer.riccati.bank_estimate`."""
+        if len(self.x) == 1:
+            return self.x[0][:], self.a[0][:], self.p[0][:]
+        w = [math.exp(v) for v in self.logw]
+        states = [x + a for x, a in zip(self.x, self.a, strict=True)]
+        mean = [sum(wi * s[j] for wi, s in zip(w, states, strict=True)) for j in range(2 * N)]
+        return mean[:N], mean[N:], _spread(w, states, self.p, mean)
+
+
+#: the row and column of each entry of a flat 6x6
+_IJ = tuple((i, j) for i in range(2 * N) for j in range(2 * N))
+
+
+def _spread(
+    w: list[float], states: list[list[float]], p: list[list[float]], mean: list[float]
+) -> list[float]:
+    """``sum_k w_k (P_k + d_k d_k^T)``, ``d_k = s_k - mean``: a mixture's covariance (flat)."""
+    acc = [0.0] * (4 * N * N)
+    for wk, sk, pk in zip(w, states, p, strict=True):
+        d = [u - v for u, v in zip(sk, mean, strict=True)]
+        dw = [wk * c for c in d]
+        acc = [c + wk * q + dw[i] * d[j] for c, q, (i, j) in zip(acc, pk, _IJ, strict=True)]
+    return acc
+
 
 def applies(bank: riccati.Bank) -> bool:
-    """Whether ``bank`` is this module's case: one run, one filter, three dimensions."""
-    return bank.runs == 1 and len(bank.owner) == 1 and bank.x.shape[-1] == N
+    """Whether ``bank`` is this module's case: one run in three dimensions."""
+    return bank.runs == 1 and bank.x.shape[-1] == N
 
 
 def from_bank(bank: riccati.Bank) -> Single:
     """The bank (see :func:`applies`) as a :class:`Single`."""
     return Single(
-        bank.x[0].tolist(), bank.a[0].tolist(), bank.p[0].ravel().tolist(), float(bank.r0[0]),
+        bank.x.tolist(), bank.a.tolist(), bank.p.reshape(len(bank.owner), -1).tolist(),
+        bank.logw.tolist(), float(bank.r0[0]),
         bank.xp[0].tolist(), bank.ap[0].tolist(), bank.pp[0].ravel().tolist(),
         float(bank.nis_avg[0]), float(bank.age_s[0]), int(bank.reseeds[0]),
         float(bank.noise_alpha[0]), float(bank.noise_beta[0]), int(bank.outliers[0]),
@@ -106,15 +137,17 @@ def from_bank(bank: riccati.Bank) -> Single:
 
 
 def to_bank(s: Single) -> riccati.Bank:
-    """The :class:`Single` as a bank of one run with one filter."""
+    """The :class:`Single` as a bank of one run."""
     d = 2 * N
+    f = len(s.x)
 
     def one(v: list[float] | float) -> np.ndarray:
         return np.array([v], dtype=float)
 
     return riccati.Bank(
-        x=one(s.x), a=one(s.a), p=np.array(s.p).reshape(1, d, d), logw=np.zeros(1),
-        owner=np.zeros(1, dtype=int), r0=one(s.r0), xp=one(s.xp), ap=one(s.ap),
+        x=np.array(s.x, dtype=float).reshape(f, N), a=np.array(s.a, dtype=float).reshape(f, N),
+        p=np.array(s.p, dtype=float).reshape(f, d, d), logw=np.array(s.logw, dtype=float),
+        owner=np.zeros(f, dtype=int), r0=one(s.r0), xp=one(s.xp), ap=one(s.ap),
         pp=np.array(s.pp).reshape(1, d, d), nis_avg=one(s.nis_avg), age_s=one(s.age_s),
         reseeds=np.array([s.reseeds]), noise_alpha=one(s.noise_alpha),
         noise_beta=one(s.noise_beta), outliers=np.array([s.outliers]),
@@ -331,7 +364,8 @@ def predict(
     q_x = prm.q_x if q_x is None else q_x
     probes = prm.learn_walk and s.walk_on > 0.0
     q = s.walk_q if probes else prm.q_a
-    s.x, s.a, s.p = predict_one(s.x, s.a, s.p, dx_m, h_s, q_x, q)
+    for i in range(len(s.x)):
+        s.x[i], s.a[i], s.p[i] = predict_one(s.x[i], s.a[i], s.p[i], dx_m, h_s, q_x, q)
     s.xp, s.ap, s.pp = predict_one(s.xp, s.ap, s.pp, dx_m, h_s, q_x, q)
     if probes:
         for k, qk in enumerate(walk_levels(q, prm)):
@@ -341,6 +375,11 @@ def predict(
     s.age_s += h_s
 
 
+def _logsumexp(values: list[float]) -> float:
+    top = max(values)
+    return top + math.log(sum(math.exp(v - top) for v in values))
+
+
 def update(s: Single, y: list[float], h_s: float, prm: riccati.BankParams) -> bool:
     """:func:`~mav_observer.riccati.bank_update` of the :class:`Single` with the bearing
     ``y``, ``h_s`` after the previous one. In place; returns whether the run's innovations
@@ -348,47 +387,119 @@ def update(s: Single, y: list[float], h_s: float, prm: riccati.BankParams) -> bo
     :func:`to_bank`), with this update applied."""
     g = prm.outlier_nis
     var = s.noise_var_rad2(prm)
-    x, a, p, nis, logdet, weight, stat = update_one(s.x, s.a, s.p, y, var, True, 1.0, g)
-    s.x, s.a, s.p = x, a, p
-    s.xp, s.ap, s.pp, *_ = update_one(s.xp, s.ap, s.pp, y, var, False, s.r0, g)
+    f = len(s.x)
+    res = [update_one(s.x[i], s.a[i], s.p[i], y, var, True, 1.0, g) for i in range(f)]
+    for i, r in enumerate(res):
+        s.x[i], s.a[i], s.p[i] = r[0], r[1], r[2]
+    s.xp, s.ap, s.pp, _, _, w_obs, _ = update_one(s.xp, s.ap, s.pp, y, var, False, s.r0, g)
     probes = prm.learn_walk and s.walk_on > 0.0
+    robust = w_obs < 1.0
     if probes:
-        res = [
+        rp = [
             update_one(s.walk_x[k], s.walk_a[k], s.walk_p[k], y, var, True, 1.0, g) for k in (0, 1)
         ]
         for k in (0, 1):
-            s.walk_x[k], s.walk_a[k], s.walk_p[k] = res[k][:3]
+            s.walk_x[k], s.walk_a[k], s.walk_p[k] = rp[k][:3]
+        robust = robust or rp[0][5] < 1.0 or rp[1][5] < 1.0
     if prm.learn_walk:
         off = prm.walk_hold and not math.isfinite(prm.walk_hold_nats)
-        if off or not s.age_s > prm.walk_warmup_s:
+        if off or f != 1 or not s.age_s > prm.walk_warmup_s:
             s.walk_on = 0.0
         elif probes:
-            _walk_step(s, nis, logdet, res[0][3], res[0][4], res[1][3], res[1][4], h_s, prm)
+            nis0, logdet0 = res[0][3], res[0][4]
+            _walk_step(s, nis0, logdet0, rp[0][3], rp[0][4], rp[1][3], rp[1][4], h_s, prm)
         else:  # start the probes as copies of the filter
             _start_probes(s)
             s.walk_on = 1.0
-    s.nis_avg += min(riccati.NIS_MAX_WEIGHT, h_s / prm.nis_window_s) * (min(nis, g) - s.nis_avg)
+    if f == 1:  # the converged run: its one filter weighs 1
+        nis, weight, stat = res[0][3], res[0][5], res[0][6]
+        mix_nis = min(nis, g)
+        w_run = weight
+        inlier_share = 1.0 if weight >= 1.0 else 0.0
+    else:
+        w_prior = [math.exp(v) for v in s.logw]
+        robust = robust or any(r[5] < 1.0 for r in res)
+        if robust:
+            floor = g + M * math.log(var)
+            loss = [min(r[3] + r[4], floor) for r in res]
+        else:
+            loss = [r[3] + r[4] for r in res]
+        logw = [s.logw[i] - 0.5 * loss[i] for i in range(f)]
+        top = _logsumexp(logw)
+        s.logw = [v - top for v in logw]
+        mix_nis = sum(w * min(r[3], g) for w, r in zip(w_prior, res, strict=True))
+        w_run = sum(w * r[5] for w, r in zip(w_prior, res, strict=True))
+        inlier_share = sum(w for w, r in zip(w_prior, res, strict=True) if r[5] >= 1.0)
+    s.nis_avg += min(riccati.NIS_MAX_WEIGHT, h_s / prm.nis_window_s) * (mix_nis - s.nis_avg)
     s.bearings += 1
-    if weight < 0.5:
+    if w_run < 0.5:
         s.outliers += 1
     if prm.learn_noise:
-        inlier = weight >= 1.0
-        s.inlier_avg += min(1.0, max(h_s, 0.0) / prm.nis_window_s) * (
-            (1.0 if inlier else 0.0) - s.inlier_avg
-        )
-        if not inlier and s.inlier_avg >= riccati.INLIER_SHARE_MIN:
-            stat = M * var
+        s.inlier_avg += min(1.0, max(h_s, 0.0) / prm.nis_window_s) * (inlier_share - s.inlier_avg)
+        all_in = s.inlier_avg >= riccati.INLIER_SHARE_MIN
+        if f == 1:
+            if weight < 1.0 and all_in:
+                stat = M * var
+        else:
+            stat = sum(
+                w * (r[6] if r[5] >= 1.0 or not all_in else M * var)
+                for w, r in zip(w_prior, res, strict=True)
+            )
         stat = min(stat, riccati.NOISE_CLIP * M * var)
         rho = math.exp(-max(h_s, 0.0) / prm.noise_memory_s)
         s.noise_alpha = rho * s.noise_alpha + 0.5 * M
         s.noise_beta = rho * s.noise_beta + 0.5 * stat
+    if f > 1:
+        keep = [i for i in range(f) if math.exp(s.logw[i]) >= prm.prune]
+        if len(keep) < f:
+            _select(s, keep)
+        if len(s.x) > 1:
+            _merge(s, prm)
     return s.nis_avg > prm.nis_gate * M and s.age_s > 2.0 * prm.nis_window_s
 
 
+def _select(s: Single, keep: list[int]) -> None:
+    s.x = [s.x[i] for i in keep]
+    s.a = [s.a[i] for i in keep]
+    s.p = [s.p[i] for i in keep]
+    logw = [s.logw[i] for i in keep]
+    top = _logsumexp(logw)
+    s.logw = [v - top for v in logw]
+
+
+def _merge(s: Single, prm: riccati.BankParams) -> None:
+    """``riccati._merge`` on the :class:`Single`: every hypothesis within
+    ``prm.merge_maha`` (squared Mahalanobis distance under the sum of the two covariances)
+    of the heaviest merged into it, moments matched."""
+    f = len(s.x)
+    w = [math.exp(v) for v in s.logw]
+    k = max(range(f), key=lambda i: (w[i], -i))  # the heaviest, the first of equals
+    others = [i for i in range(f) if i != k]
+    # the distances in one numpy call, as the bank computes them
+    st = np.array([x + a for x, a in zip(s.x, s.a, strict=True)])
+    pp = np.array(s.p).reshape(f, 2 * N, 2 * N)
+    d = st[others] - st[k]
+    m = np.einsum("ij,ij->i", d, np.linalg.solve(pp[others] + pp[k], d[..., None])[..., 0])
+    close = [i for i, mi in zip(others, m.tolist(), strict=True) if mi < prm.merge_maha]
+    if not close:
+        return
+    group = [k, *close]
+    total = sum(w[i] for i in group)
+    states = [s.x[i] + s.a[i] for i in group]
+    wg = [w[i] for i in group]
+    mean = [
+        sum(wi * si[j] for wi, si in zip(wg, states, strict=True)) / total for j in range(2 * N)
+    ]
+    p = _spread(wg, states, [s.p[i] for i in group], mean)
+    s.x[k], s.a[k], s.p[k] = mean[:N], mean[N:], [v / total for v in p]
+    s.logw[k] = math.log(total)
+    _select(s, [i for i in range(f) if i not in close])
+
+
 def _start_probes(s: Single) -> None:
-    s.walk_x = [s.x[:], s.x[:]]
-    s.walk_a = [s.a[:], s.a[:]]
-    s.walk_p = [s.p[:], s.p[:]]
+    s.walk_x = [s.x[0][:], s.x[0][:]]
+    s.walk_a = [s.a[0][:], s.a[0][:]]
+    s.walk_p = [s.p[0][:], s.p[0][:]]
     s.walk_ll = [0.0, 0.0]
 
 
@@ -403,7 +514,7 @@ def _walk_step(
     h_s: float,
     prm: riccati.BankParams,
 ) -> None:
-    """``riccati._walk_step_one`` on the :class:`Single`."""
+    """``riccati._walk_step_one`` on the :class:`Single` (one filter)."""
     g = prm.outlier_nis
     if nis > g or nis_lo > g or nis_hi > g:  # a gross error: neutral
         diff_lo = diff_hi = 0.0
@@ -426,5 +537,5 @@ def _walk_step(
         s.walk_ll = [lead_lo, lead_hi]
         return
     s.walk_q = walk_levels(q, prm)[k]
-    s.x, s.a, s.p = s.walk_x[k], s.walk_a[k], s.walk_p[k]
+    s.x[0], s.a[0], s.p[0] = s.walk_x[k], s.walk_a[k], s.walk_p[k]
     _start_probes(s)

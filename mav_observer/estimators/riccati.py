@@ -71,9 +71,9 @@ class RiccatiEstimator:
 
     def __init__(self, config: ObserverConfig) -> None:
         self.config = config
-        #: the bank, while it has more than one filter (or in other than three dimensions) ...
+        #: the bank in other than three dimensions ...
         self.bank: riccati.Bank | None = None
-        #: ... else its one filter in plain floats (:mod:`mav_observer.single`)
+        #: ... else in plain floats (:mod:`mav_observer.single`)
         self.one: single.Single | None = None
         #: time (s) of the latest bearing applied
         self.t_bearing_s: float | None = None
@@ -136,7 +136,7 @@ class RiccatiEstimator:
         return self.bank is not None or self.one is not None
 
     def _set_bank(self, bank: riccati.Bank) -> None:
-        """Hold ``bank``, as floats when it is down to one filter in three dimensions."""
+        """Hold ``bank``, as floats in three dimensions (:mod:`mav_observer.single`)."""
         if single.applies(bank):
             self.bank, self.one = None, single.from_bank(bank)
         else:
@@ -207,8 +207,9 @@ class RiccatiEstimator:
             out = self.output(inputs)
             x, a = out.x_m, out.a_mps
             if lat is not None and age_s > LATENCY_AFTER_S:
-                if one is not None:
-                    var_x = one.p[0] + one.p[7] + one.p[14]
+                if one is not None and len(one.p) == 1:
+                    p1 = one.p[0]
+                    var_x = p1[0] + p1[7] + p1[14]
                 else:
                     p = out.p
                     var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
@@ -238,7 +239,8 @@ class RiccatiEstimator:
             one = self.one
             if one is not None:
                 n2 = 2 * single.N
-                self._out = Output(one.x[:], one.a[:], np.array(one.p).reshape(n2, n2))
+                x, a, p = one.estimate()
+                self._out = Output(x, a, np.array(p).reshape(n2, n2))
                 return self._out
             if self.bank is None:
                 n = self.config.n
