@@ -478,10 +478,13 @@ class BiasObserver:
         p = out.p
         if p is not None and started:
             pxx = pxx_pred if pxx_pred is not None else est.position_cov(dt, streams)
-            x_std = np.sqrt(np.maximum(np.diag(pxx), 0.0))  # type: ignore[arg-type]
-            a_std = np.sqrt(np.maximum(np.diag(p[n:, n:]), 0.0))
-            u = x_out / rng if rng > 0.0 else x_out
-            range_std = float(math.sqrt(max(float(u @ pxx @ u), 0.0)))
+            # on lists: numpy's per-call cost is most of what small arrays cost
+            pl = pxx.tolist()  # type: ignore[union-attr]
+            x_std = np.array([math.sqrt(max(pl[i][i], 0.0)) for i in range(n)])
+            a_std = np.sqrt(np.maximum(p.diagonal()[n:], 0.0))
+            u = [c / rng for c in xhat] if rng > 0.0 else xhat
+            var_r = sum(u[i] * sum(pl[i][j] * u[j] for j in range(n)) for i in range(n))
+            range_std = math.sqrt(max(var_r, 0.0))
             x_std.setflags(write=False)
             a_std.setflags(write=False)
         estimate = Estimate(

@@ -84,6 +84,7 @@ class RiccatiEstimator:
             else None
         )
         self._out: Output | None = None  # the estimate, cached
+        self._p_flat: list[float] = []  # its covariance as a flat list (the float path)
         self._a_ref: list[float] | None = None  # the open-loop reference of a working copy
         self._prm: riccati.BankParams | None = None
         self._prm_held: riccati.BankParams | None = None
@@ -241,6 +242,7 @@ class RiccatiEstimator:
                 n2 = 2 * single.N
                 x, a, p = one.estimate()
                 self._out = Output(x, a, np.array(p).reshape(n2, n2))
+                self._p_flat = p
                 return self._out
             if self.bank is None:
                 n = self.config.n
@@ -252,6 +254,21 @@ class RiccatiEstimator:
     def position_cov(self, dt_s: float, inputs: Inputs) -> np.ndarray | None:
         n = self.config.n
         p = self.output(inputs).p
+        if self.one is not None and dt_s > 0.0:  # on the floats (numpy's calls cost more)
+            f = self._p_flat
+            q = 0.0 if inputs.sparse else self.velocity_noise_mps() ** 2 * inputs.velocity_dt_s
+            return np.array(
+                [
+                    [
+                        f[6 * i + j]
+                        + dt_s * (f[6 * i + 3 + j] + f[18 + 6 * i + j])
+                        + dt_s * dt_s * f[21 + 6 * i + j]
+                        + (q * dt_s if i == j else 0.0)
+                        for j in range(n)
+                    ]
+                    for i in range(n)
+                ]
+            )
         pxx = p[:n, :n]  # type: ignore[index]
         if dt_s > 0.0:  # the prediction's uncertainty grows with the bias's
             pxx = (
@@ -269,7 +286,12 @@ class RiccatiEstimator:
             return 1.0
         n = self.config.n
         p = self.output(None).p
-        ev = discrete.sym_eigvals(p[:n, :n].ravel().tolist(), n)  # type: ignore[index]
+        if self.one is not None:
+            f = self._p_flat
+            pxx = [f[0], f[1], f[2], f[6], f[7], f[8], f[12], f[13], f[14]]
+        else:
+            pxx = p[:n, :n].ravel().tolist()  # type: ignore[index]
+        ev = discrete.sym_eigvals(pxx, n)
         return ev[-1] / ev[0] if ev[0] > 0.0 else math.inf
 
     def nis(self) -> float | None:
