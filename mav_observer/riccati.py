@@ -672,9 +672,6 @@ def _walk_step(
     if runs == 1 and (f != 1 or not bank.age_s[0] > prm.walk_warmup_s):
         bank.walk_on[0] = 0.0  # one run (the service), not ready: nothing to do
         return
-    if runs == 1 and probes and bank.walk_on[0] > 0.0:  # the service's case, in floats
-        _walk_step_one(bank, nis.tolist(), logdet.tolist(), h_s, prm)
-        return
     if not probes:  # none ran on this bearing: start those that are ready
         count = np.bincount(bank.owner, minlength=runs)
         ready = (count == 1) & (bank.age_s > prm.walk_warmup_s)
@@ -723,42 +720,6 @@ def _walk_step(
         bank.walk_p[start] = bank.p[idx][:, None]
         bank.walk_ll[start] = 0.0
     bank.walk_on = ready.astype(float)
-
-
-def _walk_step_one(
-    bank: Bank, nis: list[float], logdet: list[float], h_s: float, prm: BankParams
-) -> None:
-    """:func:`_walk_step` for one run with one filter whose probes run (rows: the filter,
-    the observer, the two probes), in plain floats (the same arithmetic)."""
-    g_ = prm.outlier_nis
-    if any(nis[i] > g_ for i in (0, 2, 3)):  # a gross error: neutral
-        diff_lo = diff_hi = 0.0
-    else:
-        ll0 = -0.5 * (nis[0] + logdet[0])
-        diff_lo = -0.5 * (nis[2] + logdet[2]) - ll0
-        diff_hi = -0.5 * (nis[3] + logdet[3]) - ll0
-    rho = math.exp(-max(h_s, 0.0) / prm.walk_memory_s)
-    ll = bank.walk_ll
-    lead_lo = rho * float(ll[0, 0]) + diff_lo
-    lead_hi = rho * float(ll[0, 1]) + diff_hi
-    q = float(bank.walk_q[0])
-    k = -1
-    bar = prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats
-    if prm.walk_hold and q == 0.0:  # leaving 0 is held
-        bar = max(bar, prm.walk_hold_nats)
-    if lead_hi > bar and q < prm.walk_max:
-        k = 1
-    elif lead_lo > prm.walk_down_nats and q > 0.0:
-        k = 0
-    if k < 0:
-        ll[0, 0], ll[0, 1] = lead_lo, lead_hi
-        return
-    bank.walk_q[0] = _walk_levels(bank.walk_q, prm)[0, k]
-    bank.x[0], bank.a[0], bank.p[0] = bank.walk_x[0, k], bank.walk_a[0, k], bank.walk_p[0, k]
-    bank.walk_x[0] = bank.x[0]
-    bank.walk_a[0] = bank.a[0]
-    bank.walk_p[0] = bank.p[0]
-    ll[0] = 0.0
 
 
 def _merge(bank: Bank, prm: BankParams) -> None:
