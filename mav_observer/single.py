@@ -21,6 +21,7 @@ flat row-major list of 36: m^2, m^2/s, m^2/s^2). No I/O, no clock.
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,10 @@ from mav_observer import riccati
 N = 3
 #: tangent directions per bearing
 M = N - 1
+#: the upper triangle of a flat 6x6, row by row
+_UPPER = operator.itemgetter(
+    0, 1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 14, 15, 16, 17, 21, 22, 23, 28, 29, 35
+)
 
 
 @dataclass
@@ -175,14 +180,9 @@ def predict_one(
     q1 = q_a * hh / 2.0
     q2 = q_a * h
     # fmt: off
-    (
-        p00, p01, p02, p03, p04, p05,
-        _, p11, p12, p13, p14, p15,
-        _, _, p22, p23, p24, p25,
-        _, _, _, p33, p34, p35,
-        _, _, _, _, p44, p45,
-        _, _, _, _, _, p55,
-    ) = p
+    (p00, p01, p02, p03, p04, p05, p11,
+     p12, p13, p14, p15, p22, p23, p24,
+     p25, p33, p34, p35, p44, p45, p55) = _UPPER(p)
     # fmt: on
     m00 = p00 + h * (p03 + p03) + hh * p33 + q0
     m01 = p01 + h * (p04 + p13) + hh * p34
@@ -255,14 +255,9 @@ def update_one(
         z1 = -(hb0 * x0 + hb1 * x1 + hb2 * x2)
     # the columns q, w of P H^T (6 x 2; the upper triangle of P read), H P H^T (2 x 2)
     # fmt: off
-    (
-        p00, p01, p02, p03, p04, p05,
-        _, p11, p12, p13, p14, p15,
-        _, _, p22, p23, p24, p25,
-        _, _, _, p33, p34, p35,
-        _, _, _, _, p44, p45,
-        _, _, _, _, _, p55,
-    ) = p
+    (p00, p01, p02, p03, p04, p05, p11,
+     p12, p13, p14, p15, p22, p23, p24,
+     p25, p33, p34, p35, p44, p45, p55) = _UPPER(p)
     # fmt: on
     q0 = p00 * ha0 + p01 * ha1 + p02 * ha2
     q1 = p01 * ha0 + p11 * ha1 + p12 * ha2
@@ -514,7 +509,7 @@ def _walk_step(
     h_s: float,
     prm: riccati.BankParams,
 ) -> None:
-    """``riccati._walk_step_one`` on the :class:`Single` (one filter)."""
+    """``riccati._walk_step`` for one run with one filter, on the :class:`Single`."""
     g = prm.outlier_nis
     if nis > g or nis_lo > g or nis_hi > g:  # a gross error: neutral
         diff_lo = diff_hi = 0.0
