@@ -205,14 +205,18 @@ class RiccatiEstimator:
                 prm = self._prm_held
         if lat is not None or tau != 0.0:
             v = inputs.velocity_at(t_s)
-            out = self.output(inputs)
-            x, a = out.x_m, out.a_mps
+            single_filter = one is not None and len(one.x) == 1
+            if single_filter:  # the estimate is the filter's (read, not changed)
+                x, a = one.x[0], one.a[0]  # type: ignore[union-attr]
+            else:
+                out = self.output(inputs)
+                x, a = out.x_m, out.a_mps
             if lat is not None and age_s > LATENCY_AFTER_S:
-                if one is not None and len(one.p) == 1:
-                    p1 = one.p[0]
+                if single_filter:
+                    p1 = one.p[0]  # type: ignore[union-attr]
                     var_x = p1[0] + p1[7] + p1[14]
                 else:
-                    p = out.p
+                    p = self.output(inputs).p
                     var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
                 if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
                     lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))
