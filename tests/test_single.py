@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from mav_observer import riccati, single
 from mav_observer.config import ObserverConfig
@@ -153,3 +155,35 @@ def test_a_shift_moves_the_probes_too() -> None:
     ):
         assert np.allclose(np.subtract(got, was), [1.0, -2.0, 0.5])
     assert one.a == before.a
+
+
+_finite = st.floats(min_value=-1.0, max_value=1.0, allow_nan=False)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(_finite, min_size=36, max_size=36),
+    st.lists(_finite, min_size=3, max_size=3).filter(lambda v: sum(c * c for c in v) > 1e-3),
+    st.floats(min_value=1.0, max_value=500.0),
+    st.floats(min_value=1e-7, max_value=1e-2),
+    st.booleans(),
+)
+def test_one_update_keeps_the_covariance_symmetric_and_shrinks_it(
+    m: list[float], u: list[float], range_m: float, sig2: float, tracking: bool
+) -> None:
+    """For any positive definite covariance, bearing and noise: the updated covariance is
+    exactly symmetric, positive definite, and no larger than before (P - P+ positive
+    semi-definite), as a Kalman update must leave it."""
+    a_ = np.reshape(m, (6, 6))
+    p = a_ @ a_.T + 0.01 * np.eye(6)
+    d = np.array(u) / np.linalg.norm(u)
+    x = (range_m * d).tolist()
+    y = d.tolist()
+    _, _, p2, nis, _, weight, _ = single.update_one(
+        x, [0.0, 0.0, 0.0], p.ravel().tolist(), y, sig2, tracking, range_m, 9.0
+    )
+    p2 = np.reshape(p2, (6, 6))
+    assert np.array_equal(p2, p2.T)
+    assert np.linalg.eigvalsh(p2).min() > -1e-9 * np.abs(p).max()
+    assert np.linalg.eigvalsh(p - p2).min() > -1e-9 * np.abs(p).max()
+    assert nis >= 0.0 and 0.0 < weight <= 1.0
