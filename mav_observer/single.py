@@ -352,11 +352,10 @@ def walk_levels(q: float, prm: riccati.BankParams) -> tuple[float, float]:
     return (0.0 if lo < prm.walk_min else lo), hi
 
 
-def predict(
-    s: Single, dx_m: list[float], h_s: float, prm: riccati.BankParams, q_x: float | None = None
-) -> None:
-    """:func:`~mav_observer.riccati.bank_predict` of the :class:`Single`. In place."""
-    q_x = prm.q_x if q_x is None else q_x
+def predict(s: Single, dx_m: list[float], h_s: float, prm: riccati.BankParams, q_x: float) -> None:
+    """:func:`~mav_observer.riccati.bank_predict` of the :class:`Single` with the process
+    noise ``q_x`` (m^2/s) on ``x`` (the estimator's, not ``prm.q_x``: it follows the learnt
+    velocity noise). In place."""
     probes = prm.learn_walk and s.walk_on > 0.0
     q = s.walk_q if probes else prm.q_a
     for i in range(len(s.x)):

@@ -106,7 +106,7 @@ def test_the_float_path_equals_the_bank_on_a_whole_stream() -> None:
     for h, v, y in data[1:]:
         riccati.bank_predict(ref, (v * h)[None], h, prm)
         riccati.bank_update(ref, y[None], h, prm)
-        single.predict(one, (v * h).tolist(), h, prm)
+        single.predict(one, (v * h).tolist(), h, prm, prm.q_x)
         if single.update(one, y.tolist(), h, prm):
             bank = single.to_bank(one)
             riccati.reseed(bank, np.array([True]), y[None], prm)

@@ -229,7 +229,6 @@ class RiccatiEstimator:
                 self._set_bank(bank)
         else:
             riccati.bank_update(bank, np.array([y]), gap, prm)  # type: ignore[arg-type]
-            self._set_bank(bank)  # type: ignore[arg-type]
         self.t_bearing_s = t_s
         self._out = None
 
