@@ -291,6 +291,19 @@ CASES: dict[str, E2ECase] = {
             **B05,
             velocity_noise_mps=0.1,
         ),
+        E2ECase(
+            "velocity_gm_0p2",
+            "velocity error: 0.2 m/s white + 0.1 m/s Gauss-Markov (60 s) + (0.3, -0.2, 0) m/s, "
+            "bearing noise 0.5 deg, not told (gimbal from the autopilot, figure-8)",
+            "figure8",
+            "gimbal",
+            emitter={**FAST, **B05, "velocity_noise_mps": 0.2},
+            realism={
+                "velocity_gm_std_mps": 0.1,
+                "velocity_gm_tau_s": 60.0,
+                "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
+            },
+        ),
         _adaptive(
             "outliers_5pct",
             "bearing noise 0.5 deg and 5 % outliers 5-30 deg off (false locks), not told",
@@ -318,6 +331,7 @@ ADAPTIVE = (
     "noise_0p2deg",
     "noise_2deg",
     "velocity_white_0p1",
+    "velocity_gm_0p2",
     "outliers_5pct",
     "outliers_20pct",
 )
