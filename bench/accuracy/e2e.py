@@ -127,6 +127,12 @@ OWN_COMPONENT = {
 FAST = {"attitude_hz": 50.0, "bearing_hz": 25.0, "position_hz": 10.0}
 TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0, "bias_walk_mps_per_sqrt_s": 0.0}
 B05 = {"bearing_noise_deg": 0.5}
+#: A velocity error that wanders: 0.1 m/s Gauss-Markov over 60 s plus a constant.
+VELOCITY_GM = {
+    "velocity_gm_std_mps": 0.1,
+    "velocity_gm_tau_s": 60.0,
+    "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
+}
 
 
 def _adaptive(name: str, what: str, **emitter: Any) -> E2ECase:
@@ -219,11 +225,7 @@ CASES: dict[str, E2ECase] = {
             "figure8",
             "gimbal",
             emitter={**FAST, **B05, "velocity_noise_mps": 0.05},
-            realism={
-                "velocity_gm_std_mps": 0.1,
-                "velocity_gm_tau_s": 60.0,
-                "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
-            },
+            realism=VELOCITY_GM,
             # told as a user would: the white part, and the Gauss-Markov part as the bias's
             # random walk of the same short-term spread, 0.1 * sqrt(2 / 60 s)
             settings={
@@ -298,11 +300,7 @@ CASES: dict[str, E2ECase] = {
             "figure8",
             "gimbal",
             emitter={**FAST, **B05, "velocity_noise_mps": 0.2},
-            realism={
-                "velocity_gm_std_mps": 0.1,
-                "velocity_gm_tau_s": 60.0,
-                "velocity_bias_ned_mps": (0.3, -0.2, 0.0),
-            },
+            realism=VELOCITY_GM,
         ),
         _adaptive(
             "outliers_5pct",
