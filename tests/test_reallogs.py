@@ -7,6 +7,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,3 +41,16 @@ def test_injected_bearings_on_a_real_log_never_blow_up(log: Path, tmp_path: Path
     assert r["product_rel_rms"] < 0.10, r
     assert r["batch_rel_rms"] < 0.15, r  # the optimum itself is sane
     assert "replay_error" not in r["events"]
+
+
+def test_the_records_scored_are_those_of_the_truths_clock_epoch() -> None:
+    """A log whose autopilot clock restarts has estimate records of several epochs with
+    overlapping times: the epoch scored is the one whose times are the truth's (scoring the
+    first epoch's smoothed track against the second's truth read 2,800 % of range)."""
+    first = [{"t_boot_s": 50.0 + 0.5 * k, "tag": "first"} for k in range(100)]
+    second = [{"t_boot_s": 40.0 + 0.5 * k, "tag": "second"} for k in range(300)]
+    third = [{"t_boot_s": 60.0 + 0.5 * k, "tag": "third"} for k in range(20)]
+    truth_t = [r["t_boot_s"] for r in second[10:250]]
+    got = reallogs.epoch_records([*first, *second, *third], np.array(truth_t))
+    assert {r["tag"] for r in got} == {"second"} and len(got) == 300
+    assert reallogs.epoch_records([], np.array(truth_t)) == []

@@ -8,7 +8,13 @@ import re
 from pathlib import Path
 
 #: Blocks, in the order they stand at the top of the page.
-ORDER = ("end-to-end", "end-to-end-defaults", "end-to-end-adaptive", "real-logs")
+ORDER = (
+    "end-to-end",
+    "end-to-end-defaults",
+    "end-to-end-adaptive",
+    "real-logs",
+    "real-logs-other",
+)
 
 
 def _pattern(name: str) -> re.Pattern[str]:
