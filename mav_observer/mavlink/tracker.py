@@ -220,6 +220,9 @@ class _Vehicle:
     #: mean drift (m/s) between LOCAL_POSITION_NED's position and integrated velocity, and
     #: the time (s) of the sparse intervals it has seen
     drift: tuple[list[float], float] = field(default_factory=lambda: ([0.0, 0.0, 0.0], 0.0))
+    #: the previous sparse interval's deviation (m/s) of the position's change from the
+    #: integrated velocity, drift removed (``None``: no such interval just before)
+    position_dev: list[float] | None = None
 
 
 class _Deferred(Exception):
@@ -577,26 +580,31 @@ class Tracker:
         not have: measured on the shared logs with injected bearings, following it cost 2x
         to 4x in position error). An
         interval whose position jumps (an EKF reset: more than ``0.5 m + 5 m/s^2 dt^2`` off
-        the velocity's trapezoid, drift removed) keeps the velocity and is counted as
-        ``position_reset``."""
+        the velocity's trapezoid, drift removed, and as much off the previous interval's
+        deviation: a step, not a velocity that disagrees with the position for seconds)
+        keeps the velocity and is counted as ``position_reset``."""
         prev = veh.position
         if prev is None:
             return None
         t0, p0, u0 = prev
         dt = tb - t0
         if not SPARSE_VELOCITY_S <= dt <= SPARSE_VELOCITY_MAX_S:
+            veh.position_dev = None
             return None
         drift, seen_s = veh.drift
         resid = [(pos[j] - p0[j]) - 0.5 * (u0[j] + vel[j]) * dt for j in range(3)]
         dev = [resid[j] / dt - drift[j] for j in range(3)]  # m/s off the mean drift
+        before = veh.position_dev or [0.0, 0.0, 0.0]
+        veh.position_dev = dev
         off = math.sqrt(sum(d * d for d in dev)) * dt
+        step = math.sqrt(sum((d - b) ** 2 for d, b in zip(dev, before, strict=True))) * dt
         gate = 0.5 + 5.0 * dt * dt
         w = dt / (seen_s + dt) if seen_s < DRIFT_LEARN_S else 0.0
         # the drift learns from every interval, a jump's share clipped to the gate (so a
         # reset moves it little and a large constant error is still learnt)
         clip = min(1.0, gate / off) if off > 0.0 else 1.0
         veh.drift = ([drift[j] + w * clip * dev[j] for j in range(3)], seen_s + dt)
-        if off > gate:
+        if off > gate and step > gate:
             self._note(veh, "position_reset")
             return None
         drift = veh.drift[0]
