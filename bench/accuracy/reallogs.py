@@ -231,12 +231,8 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-#: The block of logs given on the command line (not the shared ones): what they are.
-OTHER_LOGS = (
-    "Public logs this project had not seen: the other flights with LOCAL_POSITION_NED of "
-    "brunoolivieri/mavlink-logs at 1c7056e16e (`sample-tlogs/`; the shared set has two of "
-    "that repository's logs), fetched for this measurement and not kept in the project"
-)
+#: What the logs given on the command line are, by default (``--about``).
+OTHER_LOGS = "Logs not in the shared set, given on the command line"
 
 
 def markdown(
@@ -261,7 +257,7 @@ def markdown(
         head = "### Real logs not in the shared set"
         what = (
             f"{other} (`python -m bench.accuracy.reallogs LOG ... --seeds {seeds} "
-            f"--write-docs`, {wall_s:.0f} s)"
+            f"--write-docs --about ...`, {wall_s:.0f} s)"
         )
     lines = [
         head,
@@ -315,6 +311,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--settings", type=Path, help="a settings file: its [observer] table")
     p.add_argument("--json", type=Path)
     p.add_argument("--write-docs", action="store_true", help="the block of docs/accuracy.md")
+    p.add_argument(
+        "--about",
+        default=OTHER_LOGS,
+        help="with LOG ... and --write-docs: what those logs are (where they come from)",
+    )
     args = p.parse_args(argv)
     logs = args.logs or shared_logs()
     vel = tuple(float(v) for v in args.vel_error.split(","))
@@ -338,7 +339,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     if args.write_docs:
-        other = OTHER_LOGS if args.logs else None
+        other = args.about if args.logs else None
         text = markdown(rows, noise_deg=args.noise_deg, vel=vel, wall_s=wall, other=other)
         name = "real-logs-other" if args.logs else "real-logs"
         blocks.put_block(ROOT / "docs" / "accuracy.md", name, text)
