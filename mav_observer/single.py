@@ -349,6 +349,8 @@ def walk_levels(q: float, prm: riccati.BankParams) -> tuple[float, float]:
     """The probes' ``q_a`` around ``q`` (m^2/s^3), as ``riccati._walk_levels``."""
     lo = q / prm.walk_factor
     hi = min(max(q * prm.walk_factor, prm.walk_min), prm.walk_max)
+    if q <= 0.0:
+        return prm.walk_jump, hi
     return (0.0 if lo < prm.walk_min else lo), hi
 
 
@@ -523,9 +525,13 @@ def _walk_step(
     bar = prm.walk_up_nats if q > 0.0 else prm.walk_leave_nats
     if prm.walk_hold and q == 0.0:  # leaving 0 is held
         bar = max(bar, prm.walk_hold_nats)
-    if lead_hi > bar and q < prm.walk_max:
+    if q > 0.0:
+        lo_bar = prm.walk_down_nats
+    else:  # at 0 the lower probe is the jump
+        lo_bar = prm.walk_leave_nats if prm.walk_jump > 0.0 and not prm.walk_hold else math.inf
+    if lead_hi > bar and q < prm.walk_max and not (q <= 0.0 and lead_lo > max(lo_bar, lead_hi)):
         k = 1
-    elif lead_lo > prm.walk_down_nats and q > 0.0:
+    elif lead_lo > lo_bar:
         k = 0
     else:
         s.walk_ll = [lead_lo, lead_hi]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -417,6 +418,28 @@ def test_the_hold_guards_leaving_zero_only() -> None:
     assert np.all(bank.bias_walk(prm) >= 1.6e-5), bank.bias_walk(prm)
 
 
+def test_a_bias_that_wanders_leaves_zero_by_the_jump_where_the_ladder_would_crawl() -> None:
+    """A bias wandering at 0.018 m/s/sqrt(s) (the intensity of a 0.1 m/s Gauss-Markov error
+    over 60 s), 70 s: from 0 the jump probe (``walk_jump``) leads and the walk leaves 0 to
+    it in every run, the estimate consistent; without the jump the ladder from ``walk_min``
+    climbs a factor 4 per move from levels the bearings can hardly tell from 0: every run
+    still below the jump's level, and over-confident."""
+    q_true = 3.3e-4
+
+    def run(**kw: float) -> tuple[np.ndarray, float]:
+        bank, prm, xt = _walking_bias_run(q_true, 35, 4, duration_s=70.0, **kw)
+        x, _, p = riccati.bank_estimate(bank)
+        err = x - xt
+        nees = np.einsum("ri,rij,rj->r", err, np.linalg.inv(p[:, :3, :3]), err) / 3
+        return bank.bias_walk(prm), float(nees.mean())
+
+    jump = riccati.BankParams(sigma_rad=1.0).walk_jump
+    q, nees = run()
+    assert np.all(q >= jump) and nees < 2.0, (np.sqrt(q), nees)
+    q, nees = run(walk_jump=0.0)
+    assert np.all(q < 0.5 * jump) and nees > 3.0, (np.sqrt(q), nees)
+
+
 def test_gross_bearing_errors_do_not_make_the_bias_walk() -> None:
     """10 % of bearings 10 deg off, a constant bias: they count for no probe (a filter with
     a wider covariance pays less for them), so nothing is learnt."""
@@ -448,8 +471,11 @@ def test_a_told_bias_walk_is_used_as_told_and_the_probes_follow_the_bank() -> No
                 assert np.array_equal(bank.walk_x[r, 0], bank.x[i])
                 assert np.array_equal(bank.walk_p[r, 1], bank.p[i])
     assert bank.walk_on.all()
-    assert np.allclose(riccati._walk_levels(np.array([0.0, 1e-4]), learn),
-                       [[0.0, learn.walk_min], [2.5e-5, 4e-4]])  # fmt: skip
+    assert np.allclose(riccati._walk_levels(np.array([0.0, 1e-4, 1e-6]), learn),
+                       [[learn.walk_jump, learn.walk_min], [2.5e-5, 4e-4],
+                        [0.0, 4e-6]])  # fmt: skip
+    no_jump = replace(learn, walk_jump=0.0)
+    assert np.allclose(riccati._walk_levels(np.array([0.0]), no_jump), [[0.0, no_jump.walk_min]])
 
 
 def test_a_bearing_applied_to_a_position_alone_moves_it_across_the_bearing_only() -> None:
