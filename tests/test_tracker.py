@@ -483,6 +483,34 @@ def test_sparse_velocity_takes_the_displacement_from_the_position() -> None:
     assert "position_reset" not in tr.events
 
 
+def test_the_drift_is_learnt_from_the_first_interval_and_then_kept() -> None:
+    # LOCAL_POSITION_NED at 1 Hz in a hover whose velocity is off its positions by a
+    # constant plus 0.1 m/s of noise per sample (a real EKF's): the drift taken out of every
+    # interval's mean is the same from the first interval on (a constant, which ``a`` takes
+    # up), not a running mean that moves the velocity handed to the estimator each second
+    rng = np.random.default_rng(7)
+    tr = Tracker(TrackerConfig(sources=("home",)))
+    drifts = []
+    orig = tr._interval_mean_velocity
+
+    def spy(veh, tb, pos, vel):
+        out = orig(veh, tb, pos, vel)
+        if out is not None:
+            drifts.append([out[j] + (pos[j] - spy.p0[j]) for j in range(3)])  # mean + dp/dt
+        spy.p0 = pos
+        return out
+
+    spy.p0 = None
+    tr._interval_mean_velocity = spy  # type: ignore[method-assign]
+    for k in range(20):
+        pos = (0.3 * math.sin(0.2 * k), 0.2 * math.cos(0.3 * k), -3.0)
+        vel = tuple(float(c) for c in np.array([2.0, -1.0, 0.0]) + rng.normal(0.0, 0.1, 3))
+        tr.handle(T0_UNIX + k, lpn(100_000 + 1000 * k, pos, vel))
+    assert len(drifts) == 19
+    np.testing.assert_allclose(drifts, [drifts[0]] * len(drifts), atol=1e-12)
+    assert "position_reset" not in tr.events
+
+
 def test_a_position_jump_keeps_the_velocity_and_is_counted() -> None:
     tr = Tracker(TrackerConfig(sources=("home",)))
     for k in range(10):

@@ -74,8 +74,13 @@ SAME_CLOCK_TOL_S = 0.05
 SPARSE_VELOCITY_S = 0.2
 SPARSE_VELOCITY_MAX_S = 5.0
 #: The mean drift between LOCAL_POSITION_NED's position and its integrated velocity is
-#: learnt over this much (s) of sparse intervals, then kept.
-DRIFT_LEARN_S = 30.0
+#: learnt over this much (s) of sparse intervals, then kept: one interval of a 1 Hz stream.
+#: Any constant drift is taken up by ``a`` (the positions are GNSS-true); a drift still
+#: being learnt changes the velocity handed to the estimator at every interval, a velocity
+#: error ``a`` cannot follow: learnt over 30 s, a 35 s hover at 2-3 m (a public 1 Hz log)
+#: was 6.7-9.0 % of the range off over its last third, 2.3-3.3 % learnt over the first
+#: interval (``docs/frames.md``).
+DRIFT_LEARN_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -575,7 +580,8 @@ class Tracker:
         drift between the two (a constant velocity error, ``a``'s business) is kept out: the
         displacement used is the position's change less ``drift * dt``, the drift being
         the time average of ``(dp - trapezoid(u)) / dt`` over the first
-        :data:`DRIFT_LEARN_S` of such intervals, then kept (a drift that followed the
+        :data:`DRIFT_LEARN_S` of such intervals (the first interval of a 1 Hz stream), then
+        kept (a drift that followed the
         velocity sensor's slow wander would turn into a varying ``a``, which the model does
         not have: measured on the shared logs with injected bearings, following it cost 2x
         to 4x in position error). An
