@@ -80,18 +80,12 @@ def epoch_records(est: list[dict[str, Any]], tt: np.ndarray) -> list[dict[str, A
     return max(segments, key=lambda seg: _shared_times(np.array([r["t_boot_s"] for r in seg]), tt))
 
 
-def run_log(
-    log: Path,
-    *,
-    seed: int = 0,
-    noise_deg: float = 0.5,
-    vel_error: tuple[float, float, float] = (2.0, -1.0, 0.0),
-    observer: dict[str, Any] | None = None,
-    workdir: Path | None = None,
-) -> dict[str, Any]:
-    """Inject, replay, fit and score one log."""
+def injected(
+    log: Path, *, seed: int, noise_deg: float, vel_error: tuple[float, float, float]
+) -> inj.InjectResult:
+    """``log`` with the bench's bearing stream injected (``--target auto``): a log with a
+    gimbal of its own gets it as a second gimbal device."""
     records = inj.split_records(log.read_bytes())
-    # a log with a gimbal of its own gets the injected one as a second gimbal device
     probe = inj.InjectConfig(target_ned_m=None, noise_deg=noise_deg, seed=seed)
     sysid = max(inj.vehicles_with_local_position(records).items(), key=lambda kv: kv[1])[0][0]
     dev = 2 if inj.same_target_frames(records, sysid, probe) else 1
@@ -102,7 +96,20 @@ def run_log(
         seed=seed,
         gimbal_device_id=dev,
     )
-    res = inj.inject(records, cfg)
+    return inj.inject(records, cfg)
+
+
+def run_log(
+    log: Path,
+    *,
+    seed: int = 0,
+    noise_deg: float = 0.5,
+    vel_error: tuple[float, float, float] = (2.0, -1.0, 0.0),
+    observer: dict[str, Any] | None = None,
+    workdir: Path | None = None,
+) -> dict[str, Any]:
+    """Inject, replay, fit and score one log."""
+    res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "injected.tlog"
         path.write_bytes(b"".join(res.records))
