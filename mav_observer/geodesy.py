@@ -87,6 +87,8 @@ def origin_from(
     if not all(math.isfinite(c) for c in ned_m):
         raise InvalidSampleError(f"{source}: local position {list(ned_m)} is not finite")
     n, e, d = ned_m
+    if n == e == d == 0.0:  # the point is the origin
+        return Origin(lat_deg, lon_deg, alt_m, source)
     lat, lon, alt = _exact(lat_deg, lon_deg, alt_m, (-n, -e, -d))
     # -ned_m is along the point's axes, not the origin's (they differ by |ned_m| / R rad):
     # corrected until the origin maps ned_m onto the point (two rounds: micrometres)

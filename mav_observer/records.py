@@ -22,6 +22,13 @@ Shared by replay (JSON Lines and CSV files) and the service (Zenoh). Fields:
                           covariance (riccati)
 ``status``                ``converging``, ``converged``, ``not observable`` or ``stale``
 ``corrected``             false if the estimate is a prediction without a usable bearing
+``target_lat_deg``        the target's WGS84 latitude, deg, or null until the local frame's origin
+                          is known (``docs/geolocation.md``)
+``target_lon_deg``        its longitude, deg, or null
+``target_alt_m``          its altitude AMSL, m, or null
+``target_h_std_m``        1-sigma horizontal uncertainty, ``sqrt(sd_n^2 + sd_e^2)`` of
+                          ``rel_pos_std_ned_m`` (twice it holds about 95 % of errors), m, or null
+``target_v_std_m``        1-sigma vertical uncertainty (``sd_d``), m, or null
 ========================  =========================================================================
 """
 
@@ -32,6 +39,7 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from mav_observer.geodesy import Origin, to_geodetic
 from mav_observer.samples import Estimate
 
 SCHEMA_VERSION = 1
@@ -50,6 +58,7 @@ STATUS_KEYS = (
     "skipped",
     "link_skipped",
     "bearing_sources",
+    "origin",
     "observers",
     "events",
 )
@@ -81,6 +90,11 @@ CSV_COLUMNS = (
     "cond_m",
     "status",
     "corrected",
+    "target_lat_deg",
+    "target_lon_deg",
+    "target_alt_m",
+    "target_h_std_m",
+    "target_v_std_m",
 )
 
 
@@ -95,6 +109,8 @@ class EstimateRecord:
     source: str
     estimate: Estimate
     vehicle_pos_ned_m: tuple[float, float, float] | None
+    #: the local frame's origin on WGS84, when known (:mod:`mav_observer.geodesy`)
+    origin: Origin | None = None
 
     @property
     def target_pos_ned_m(self) -> tuple[float, float, float] | None:
@@ -103,6 +119,19 @@ class EstimateRecord:
         x = self.estimate.x_m
         p = self.vehicle_pos_ned_m
         return (p[0] + float(x[0]), p[1] + float(x[1]), p[2] + float(x[2]))
+
+    def target_geodetic(self) -> tuple[float, float, float, float | None, float | None] | None:
+        """The target as (latitude deg, longitude deg, altitude m AMSL, horizontal and
+        vertical 1-sigma m or ``None``), or ``None`` without an origin or a vehicle position."""
+        tp = self.target_pos_ned_m
+        if tp is None or self.origin is None:
+            return None
+        lat, lon, alt = to_geodetic(self.origin, tp)
+        sd = self.estimate.x_std_m
+        if sd is None or len(sd) != 3:
+            return lat, lon, alt, None, None
+        sn, se, sdd = (float(v) for v in sd)
+        return lat, lon, alt, math.sqrt(sn * sn + se * se), sdd
 
     def to_dict(self) -> dict[str, Any]:
         e = self.estimate
@@ -128,6 +157,7 @@ class EstimateRecord:
             "cond_m": e.cond_m,
             "status": str(e.status),
             "corrected": e.corrected,
+            **dict(zip(_GEO_KEYS, self.target_geodetic() or _NO_GEO, strict=True)),
         }
 
     def to_json(self) -> str:
@@ -158,7 +188,7 @@ class EstimateRecord:
         else:
             v0, v1, v2 = (float(v) for v in vp)
             template, pos = _JSON_POS, (v0 + x0, v1 + x1, v2 + x2, v0, v1, v2)
-        vals = (*head, *nums, *pos, *tail)
+        vals = (*head, *nums, *pos, *tail, _geo_json(self.target_geodetic()))
         if math.isfinite(sum((*head[:2], *nums, *pos, *tail[3:5]))):  # all finite: fast path
             return template % vals
         return _format_checked(template, vals)
@@ -183,6 +213,7 @@ class EstimateRecord:
             e.cond_m,
             str(e.status),
             int(e.corrected),
+            *(self.target_geodetic() or _NO_GEO),
         ]
 
 
@@ -194,6 +225,8 @@ JSON_RESOLUTION = {
     "bias_ned_mps, bias_std_ned_mps": "0.01 mm/s (5 decimals)",
     "range_std_m, rel_pos_std_ned_m": "0.1 mm (4 decimals)",
     "pe, cond_m": "6 significant digits",
+    "target_lat_deg, target_lon_deg": "1e-8 deg (8 decimals, about 1 mm)",
+    "target_alt_m, target_h_std_m, target_v_std_m": "0.1 mm (4 decimals)",
 }
 """How :meth:`EstimateRecord.to_json` rounds each number."""
 _JSON_HEAD = (
@@ -203,8 +236,21 @@ _JSON_HEAD = (
 )
 _JSON_TAIL = (
     '"range_std_m": %s, "rel_pos_std_ned_m": %s, "bias_std_ned_mps": %s, '
-    f'"pe": {_G}, "cond_m": {_G}, "status": "%s", "corrected": %s}}'
+    f'"pe": {_G}, "cond_m": {_G}, "status": "%s", "corrected": %s, %s}}'
 )
+_GEO_KEYS = ("target_lat_deg", "target_lon_deg", "target_alt_m", "target_h_std_m", "target_v_std_m")
+_NO_GEO = (None, None, None, None, None)
+_GEO_FMT = ("%.8f", "%.8f", _P, _P, _P)  # 1e-8 deg: about a millimetre
+
+
+def _geo_json(geo: tuple[float, float, float, float | None, float | None] | None) -> str:
+    """The geodetic fields of :meth:`EstimateRecord.to_json` (``null`` each when unknown)."""
+    vals = geo or _NO_GEO
+    return ", ".join(
+        f'"{k}": {_num_or_null(f, v)}' for k, f, v in zip(_GEO_KEYS, _GEO_FMT, vals, strict=True)
+    )
+
+
 _JSON_POS = (
     _JSON_HEAD
     + f'"target_pos_ned_m": [{_P}, {_P}, {_P}], "vehicle_pos_ned_m": [{_P}, {_P}, {_P}], '

@@ -288,6 +288,16 @@ class ReplaySummary:
                     f"[{', '.join(f'{v:.3f}' for v in e.a_mps)}] m/s, target_pos_ned {tp_txt}, "
                     f"status {e.status}"
                 )
+                geo = t.final.target_geodetic()
+                if geo is not None and t.final.origin is not None:
+                    lat, lon, alt, h_sd, v_sd = geo
+                    sd_txt = (
+                        "" if h_sd is None else f" +-{h_sd:.2f} m (1 sigma), alt +-{v_sd:.2f} m"
+                    )
+                    lines.append(
+                        f"  on the map: {lat:.7f} {lon:.7f} {alt:.1f} m AMSL{sd_txt} "
+                        f"(origin from {t.final.origin.source})"
+                    )
         lines.append(
             f"estimates written: {self.estimates_written}; {self.messages_read} messages in "
             f"{self.wall_s:.2f} s ({self.messages_per_s:,.0f} messages/s)"

@@ -336,6 +336,7 @@ class Service:
                 k: v for k, v in sorted(self.tracker.skipped.items()) if k in _LINK_REASONS
             },
             "bearing_sources": sorted({t.source for t in view.targets.values()}),
+            "origin": self.tracker.origin(view.sysid),
             "observers": observers,
             "events": dict(sorted(self.tracker.events.items())),
         }

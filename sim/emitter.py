@@ -45,6 +45,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, TextIO
 
 import numpy as np
+import pymap3d
 
 from mav_observer.frames import quat_from_euler
 from mav_observer.mavlink import adapters
@@ -76,7 +77,6 @@ TARGET_OF = {
 AUTOPILOT = 1
 CAMERA = 100
 ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M = -35.363261, 149.165230, 584.0
-EARTH_R_M = 6_378_137.0
 
 
 @dataclass(frozen=True)
@@ -259,18 +259,17 @@ class Emitter:
                     )
                 ),
             )
-            lat = ORIGIN_LAT_DEG + math.degrees(p[0] / EARTH_R_M)
-            lon = ORIGIN_LON_DEG + math.degrees(
-                p[1] / (EARTH_R_M * math.cos(math.radians(ORIGIN_LAT_DEG)))
+            lat, lon, alt = pymap3d.ned2geodetic(
+                p[0], p[1], p[2], ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M
             )
             yield Emission(
                 t + 0.0001,
                 self._pack(
                     mavlink.MAVLink_global_position_int_message(
                         self.boot_ms(t),
-                        int(lat * 1e7),
-                        int(lon * 1e7),
-                        int((ORIGIN_ALT_M - p[2]) * 1000),
+                        round(float(lat) * 1e7),
+                        round(float(lon) * 1e7),
+                        round(float(alt) * 1000),
                         int(-p[2] * 1000),
                         int(u[0] * 100),
                         int(u[1] * 100),

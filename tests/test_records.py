@@ -2,9 +2,12 @@
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from mav_observer.geodesy import Origin, to_geodetic
 from mav_observer.records import CSV_COLUMNS, SCHEMA_VERSION, EstimateRecord
 from mav_observer.samples import Estimate, Status
 
@@ -69,6 +72,7 @@ def _close(a: object, b: object, tol: float) -> bool:
 def test_json_is_the_dict_rounded_to_the_documented_resolution() -> None:
     rng = np.random.default_rng(7)
     tol = {"t_unix_s": 5e-7, "t_boot_s": 5e-7, "bias_ned_mps": 5e-6}
+    tol |= {"target_lat_deg": 5e-9, "target_lon_deg": 5e-9}
     for _ in range(200):
         x = rng.normal(0.0, 300.0, 3)
         est = Estimate(
@@ -76,8 +80,13 @@ def test_json_is_the_dict_rounded_to_the_documented_resolution() -> None:
             float(rng.uniform(0, 1)) ** 6, float(rng.uniform(1, 1e4)), Status.CONVERGING,
             bool(rng.integers(2)), 0.0, 0.0, 0.0,
         )  # fmt: skip
+        if rng.integers(2):
+            est = replace(est, x_std_m=np.abs(rng.normal(0.0, 3.0, 3)))
         vpos = None if rng.integers(4) == 0 else tuple(rng.normal(0.0, 500.0, 3).tolist())
-        r = EstimateRecord(1.7e9 + float(rng.uniform(0, 1e7)), est.t_s, 3, "gimbal", "G", est, vpos)
+        origin = ORIGIN if rng.integers(2) else None
+        r = EstimateRecord(
+            1.7e9 + float(rng.uniform(0, 1e7)), est.t_s, 3, "gimbal", "G", est, vpos, origin
+        )
         d, j = r.to_dict(), json.loads(r.to_json())
         assert j.keys() == d.keys()
         for key, value in d.items():
@@ -97,3 +106,32 @@ def test_non_finite_with_a_position_gives_null_only_where_it_is() -> None:
     assert d["rel_pos_ned_m"] == [3.0, None, 12.0] and d["range_m"] is None
     assert d["target_pos_ned_m"] == [4.0, None, 15.0]
     assert d["vehicle_pos_ned_m"] == [1.0, 2.0, 3.0] and d["corrected"] is False
+
+
+ORIGIN = Origin(-35.3632621, 149.1652374, 584.09, "HOME_POSITION")
+
+
+def test_the_target_on_the_map_once_the_origin_is_known() -> None:
+    """With an origin: the target's latitude, longitude and altitude are the local target
+    position's (vehicle + relative) on WGS84, the horizontal 1-sigma the root sum of the
+    north and east ones, the vertical the down one; in JSON, the dict and CSV alike. Without
+    an origin (or a vehicle position) they are null."""
+    est = replace(_est(), x_std_m=np.array([0.3, 0.4, 1.2]))
+    r = EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (10.0, 20.0, -15.0), ORIGIN)
+    lat, lon, alt = to_geodetic(ORIGIN, (13.0, 24.0, -3.0))
+    d = r.to_dict()
+    assert (d["target_lat_deg"], d["target_lon_deg"], d["target_alt_m"]) == (lat, lon, alt)
+    assert alt == pytest.approx(584.09 + 3.0, abs=1e-3)  # 3 m above the origin
+    assert d["target_h_std_m"] == pytest.approx(0.5) and d["target_v_std_m"] == 1.2
+    j = json.loads(r.to_json())
+    assert j["target_lat_deg"] == pytest.approx(lat, abs=5e-9)
+    assert j["target_h_std_m"] == pytest.approx(0.5)
+    named = dict(zip(CSV_COLUMNS, r.csv_row(), strict=True))
+    assert named["target_lon_deg"] == lon and named["target_v_std_m"] == 1.2
+    for no in (
+        EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (10.0, 20.0, -15.0)),
+        EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, None, ORIGIN),
+    ):
+        j = json.loads(no.to_json())
+        assert [j[k] for k in ("target_lat_deg", "target_lon_deg", "target_alt_m")] == [None] * 3
+        assert no.to_dict()["target_h_std_m"] is None

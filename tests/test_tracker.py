@@ -63,7 +63,11 @@ def test_one_vehicle_one_gimbal_estimates_with_context() -> None:
     assert (r.sysid, r.target, r.source) == (1, "gimbal", "GIMBAL_DEVICE_ATTITUDE_STATUS")
     assert r.t_boot_s == pytest.approx(100.0 + 4.905)  # the autopilot clock
     assert r.t_unix_s == pytest.approx(T0_UNIX + 4.905 + 0.01)  # arrival (tlog) time
-    assert r.vehicle_pos_ned_m == pytest.approx((4.9 + 0.005, 0.0, -10.0))  # extrapolated 5 ms
+    # extrapolated 5 ms with the velocity less the estimated bias (its error, for a fixed target)
+    a = r.estimate.a_mps.tolist()
+    assert r.vehicle_pos_ned_m == pytest.approx(
+        (4.9 + (1.0 - a[0]) * 0.005, -a[1] * 0.005, -10.0 - a[2] * 0.005)
+    )
     assert tr.targets() == {(1, "gimbal"): "GIMBAL_DEVICE_ATTITUDE_STATUS"}
     assert tr.skipped == {}
 
@@ -608,3 +612,66 @@ def test_a_target_that_moves_far_is_reacquired_and_the_event_counted() -> None:
     assert math.dist(last.target_pos_ned_m, (0.0, 40.0, 0.0)) < 2.0
     obs = tr.observer(1, "gimbal")
     assert obs is not None and obs.reacquisitions == tr.events["reacquired"]
+
+
+HOME_LL = (-35.3629, 149.1651, 584.0)  # deg, deg, m AMSL
+
+
+def _home(x: float, y: float, z: float, lat_lon_alt: tuple[float, float, float] = HOME_LL):
+    lat, lon, alt = lat_lon_alt
+    return message("HOME_POSITION", round(lat * 1e7), round(lon * 1e7), round(alt * 1e3),
+                   x, y, z, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)  # fmt: skip
+
+
+def _gpi(ms: int, lat: float, lon: float, alt: float):
+    return message("GLOBAL_POSITION_INT", ms, round(lat * 1e7), round(lon * 1e7),
+                   round(alt * 1e3), 0, 0, 0, 0, 0)  # fmt: skip
+
+
+def test_the_local_origin_from_home_position_and_its_move_is_counted() -> None:
+    from mav_observer.geodesy import to_geodetic
+
+    tr = Tracker(TrackerConfig())
+    tr.handle(T0_UNIX, lpn(100_000))
+    tr.handle(T0_UNIX + 0.1, _home(12.0, -7.0, 1.5))
+    o = tr.vehicles[1].origin
+    assert o is not None and o.source == "HOME_POSITION"
+    lat, lon, alt = to_geodetic(o, (12.0, -7.0, 1.5))  # the home, placed back
+    assert (lat, lon) == pytest.approx(HOME_LL[:2], abs=2e-8)
+    assert alt == pytest.approx(HOME_LL[2], abs=0.002)
+    tr.handle(T0_UNIX + 0.2, _home(12.0, -7.0, 1.5))  # the same home again: nothing moves
+    assert tr.vehicles[1].origin is o and "origin_changed" not in tr.events
+    tr.handle(T0_UNIX + 0.3, _home(22.0, -7.0, 1.5))  # a new home 10 m north, same place
+    assert tr.vehicles[1].origin is not o and tr.events["origin_changed"] == 1
+
+
+def test_gps_global_origin_wins_and_global_position_pairs_with_local_position() -> None:
+    # GLOBAL_POSITION_INT and LOCAL_POSITION_NED at the same time_boot_ms place the origin;
+    # at different ones they do not; HOME_POSITION replaces it, GPS_GLOBAL_ORIGIN replaces
+    # that, and neither lesser source moves it any more
+    tr = Tracker(TrackerConfig())
+    tr.handle(T0_UNIX, lpn(100_000, (30.0, 40.0, -10.0)))
+    tr.handle(T0_UNIX + 0.05, _gpi(100_050, *HOME_LL))
+    assert tr.vehicles[1].origin is None
+    tr.handle(T0_UNIX + 0.1, _gpi(100_100, *HOME_LL))
+    tr.handle(T0_UNIX + 0.1, lpn(100_100, (30.0, 40.0, -10.0)))
+    o = tr.vehicles[1].origin
+    assert o is not None and o.source == "GLOBAL_POSITION_INT"
+    assert o.alt_m == pytest.approx(HOME_LL[2] - 10.0, abs=0.01)  # the vehicle 10 m up
+    tr.handle(T0_UNIX + 0.2, _home(0.0, 0.0, 0.0))
+    assert tr.vehicles[1].origin.source == "HOME_POSITION"
+    ggo = message("GPS_GLOBAL_ORIGIN", -353600000, 1491600000, 580_000)
+    tr.handle(T0_UNIX + 0.3, ggo)
+    o = tr.vehicles[1].origin
+    assert (o.source, o.lat_deg, o.lon_deg, o.alt_m) == ("GPS_GLOBAL_ORIGIN", -35.36, 149.16, 580.0)
+    tr.handle(T0_UNIX + 0.4, _home(5.0, 5.0, 0.0))
+    tr.handle(T0_UNIX + 0.5, _gpi(100_500, -35.0, 149.0, 100.0))
+    tr.handle(T0_UNIX + 0.5, lpn(100_500, (30.0, 40.0, -10.0)))
+    assert tr.vehicles[1].origin is o and tr.events["origin_changed"] == 2
+
+
+def test_an_impossible_origin_is_skipped_and_counted() -> None:
+    tr = Tracker(TrackerConfig())
+    tr.handle(T0_UNIX, message("GPS_GLOBAL_ORIGIN", 950_000_000, 0, 0))  # latitude 95 deg
+    assert tr.vehicles[1].origin is None
+    assert tr.skipped["out_of_range"] == 1

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pymap3d
 
 from bench.accuracy import blocks, core
 from mav_observer import settings as st
@@ -408,7 +409,9 @@ def score(
         last = np.nonzero(above)[0]
         t10 = float(t[last[-1] + 1] - t0_boot_s) if len(last) else float(t[0] - t0_boot_s)
     db = ah[sel] - a_true[sel]
+    geo = _geodetic_errors(records, truth, inside, sel)
     return {
+        **geo,
         "rms_m": rms,
         "crlb_m": crlb_rms,
         "ratio": rms / crlb_rms,
@@ -426,6 +429,41 @@ def score(
         "converged_share": float(
             np.mean([r["status"] == "converged" for r, k in zip(records, inside, strict=True) if k])
         ),
+    }
+
+
+def _geodetic_errors(
+    records: list[dict[str, Any]],
+    truth: list[dict[str, Any]],
+    inside: np.ndarray,
+    sel: np.ndarray,
+) -> dict[str, float]:
+    """The target's published latitude, longitude and altitude against the truth's (its
+    local position on the emitter's origin, :data:`sim.emitter.ORIGIN_LAT_DEG`, by pymap3d)
+    over the steady window: the median horizontal and vertical errors (m) and the share of
+    estimates whose horizontal error is within twice their ``target_h_std_m`` (about 95 %
+    for an honest one); empty when no record carries them."""
+    recs = [r for r, k in zip(records, inside, strict=True) if k]
+    recs = [r for r, k in zip(recs, sel, strict=True) if k and r.get("target_lat_deg") is not None]
+    if not recs:
+        return {}
+    tt = np.array([d["t_boot_s"] for d in truth])
+    order = np.argsort(tt, kind="stable")
+    tp = np.array([d["target_pos_ned_m"] for d in truth])[order]
+    t = np.array([r["t_boot_s"] for r in recs])
+    tp_i = np.column_stack([np.interp(t, tt[order], tp[:, i]) for i in range(3)])
+    lat0, lon0, alt0 = em.ORIGIN_LAT_DEG, em.ORIGIN_LON_DEG, em.ORIGIN_ALT_M
+    lat_t, lon_t, alt_t = pymap3d.ned2geodetic(tp_i[:, 0], tp_i[:, 1], tp_i[:, 2], lat0, lon0, alt0)
+    lat = np.array([r["target_lat_deg"] for r in recs])
+    lon = np.array([r["target_lon_deg"] for r in recs])
+    alt = np.array([r["target_alt_m"] for r in recs])
+    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, lat_t, lon_t, alt_t)
+    h = np.hypot(n, e)
+    h_std = np.array([r["target_h_std_m"] for r in recs], dtype=float)
+    return {
+        "geo_h_med_m": float(np.median(h)),
+        "geo_v_med_m": float(np.median(np.abs(d))),
+        "geo_h_within_2sd": float(np.mean(h <= 2.0 * h_std)),
     }
 
 
