@@ -566,6 +566,16 @@ def pooled(runs: list[dict]) -> dict[str, float]:
             )
             if all(r.get(k) is not None for r in runs)
         },
+        **(
+            {
+                "geo_h_med_m": float(np.median([r["geo_h_med_m"] for r in runs])),
+                "geo_h_med_worst_m": max(r["geo_h_med_m"] for r in runs),
+                "geo_v_med_m": float(np.median([r["geo_v_med_m"] for r in runs])),
+                "geo_h_within_2sd": float(np.mean([r["geo_h_within_2sd"] for r in runs])),
+            }
+            if all("geo_h_med_m" in r for r in runs)
+            else {}
+        ),
     }  # fmt: skip
 
 
@@ -602,6 +612,26 @@ def table(results: dict[str, dict[str, Any]]) -> str:
             f"| {p['range_bias_pct']:+.2f} % | {p['bias_rms_mps']:.3f} m/s "
             f"| {p['t10_med_s']:.1f} / {p['t10_max_s']:.1f} s "
             f"| {100 * p['converged_share']:.0f} % |"
+        )
+    return "\n".join(lines)
+
+
+def geo_table(results: dict[str, dict[str, Any]]) -> str:
+    """The target on the map (``target_lat_deg``, ``target_lon_deg``, ``target_alt_m``)
+    against the truth's over the last third: median errors (median over runs, and the worst
+    run's horizontal median) and the share of estimates within twice ``target_h_std_m``."""
+    lines = [
+        "| case | horizontal error, median (worst run) | vertical error, median "
+        "| within 2 target_h_std_m |",
+        "|---|---|---|---|",
+    ]
+    for name, res in results.items():
+        p = res["pooled"]
+        if "geo_h_med_m" not in p:
+            continue
+        lines.append(
+            f"| {name} | {100 * p['geo_h_med_m']:.1f} cm ({100 * p['geo_h_med_worst_m']:.1f} cm) "
+            f"| {100 * p['geo_v_med_m']:.1f} cm | {100 * p['geo_h_within_2sd']:.0f} % |"
         )
     return "\n".join(lines)
 
@@ -790,6 +820,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 p.error(str(e))
             write_block(name, res, seeds=args.seeds, duration_s=args.duration, wall_s=wall)
         print(table(res))
+        print(geo_table(res))
         return 0
     block = None
     if args.write_docs:  # refused before the runs, not after
@@ -801,6 +832,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     res = run_cases(args.cases, args.seeds, args.duration, args.jobs, args.defaults)
     wall = time.perf_counter() - t0
     print(table(res))
+    print(geo_table(res))
     for name, r in res.items():
         ev = {}
         for run in r["runs"]:
