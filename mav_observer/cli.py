@@ -65,6 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--csv", type=Path, help="estimate records, CSV")
     rp.add_argument("--plot", type=Path, help="report figure (PNG; needs matplotlib)")
     rp.add_argument(
+        "--geojson",
+        type=Path,
+        help="the vehicle's track and the target's estimates with their uncertainty on the map "
+        "(GeoJSON, docs/geolocation.md)",
+    )
+    rp.add_argument("--kml", type=Path, help="the same as KML (Google Earth, QGIS)")
+    rp.add_argument(
         "--truth", type=Path, help="a reference track, JSON Lines (docs/schema.md): errors too"
     )
     rp.add_argument(
@@ -365,6 +372,34 @@ def cmd_listen(args: argparse.Namespace) -> int:
     return 0
 
 
+def _write_maps(args: argparse.Namespace, summary: Any, name: str) -> int:
+    """Write ``--geojson`` and ``--kml``; 3 (nothing written) when no estimate had a place
+    on the map (the log never gave the local frame's origin)."""
+    import json
+
+    from mav_observer import mapexport
+
+    if not (args.geojson or args.kml):
+        return 0
+    tracks = summary.map_tracks
+    if not tracks:
+        print(
+            "mav-observer: no map written: no estimate has a place on the map (the log gives "
+            "no GPS_GLOBAL_ORIGIN, HOME_POSITION, or GLOBAL_POSITION_INT at the time of a "
+            "LOCAL_POSITION_NED; docs/geolocation.md)",
+            file=sys.stderr,
+        )
+        return 3
+    try:
+        if args.geojson:
+            args.geojson.write_text(json.dumps(mapexport.geojson(tracks)), encoding="utf-8")
+        if args.kml:
+            args.kml.write_text(mapexport.kml(tracks, name=name), encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"cannot write the map: {exc}") from exc
+    return 0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from mav_observer import reference
     from mav_observer import replay as rp
@@ -398,7 +433,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         progress=not args.quiet and sys.stderr.isatty(),
         smooth=args.smooth is not None,
         smooth_jsonl=args.smooth if isinstance(args.smooth, Path) else None,
+        keep_map=bool(args.geojson or args.kml or args.plot),
     )
+    map_status = _write_maps(args, summary, Path(source).name)
     errors = None
     if args.truth:
         track = reference.read(args.truth)
@@ -411,6 +448,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             errors=errors,
             excitation_min=cfg.observer.excitation_min,
             events=summary.event_log,
+            maps=summary.map_tracks,
         )
     if not args.quiet:
         print(summary.text())
@@ -427,7 +465,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if errors:
             doc["truth_last_third"] = {k: reference.last_third(e) for k, e in errors.items()}
         args.summary_json.write_text(json.dumps(doc, indent=1))
-    return 0
+    return map_status
 
 
 def main(argv: Sequence[str] | None = None) -> int:

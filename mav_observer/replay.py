@@ -24,6 +24,7 @@ import numpy as np
 
 from mav_observer import smoother
 from mav_observer.errors import MavObserverError
+from mav_observer.mapexport import MapTracks
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source
 from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
@@ -172,6 +173,8 @@ class ReplaySummary:
     smoothed_final: dict[str, tuple[float, list[float], list[float], int, int]] = field(
         default_factory=dict
     )
+    #: ``keep_map``: what the GeoJSON and KML exports need (:mod:`mav_observer.mapexport`)
+    map_tracks: MapTracks | None = None
 
     @property
     def messages_per_s(self) -> float:
@@ -357,18 +360,23 @@ def replay(
     smooth: bool = False,
     smooth_jsonl: Path | None = None,
     smooth_window_s: float = smoother.WINDOW_S,
+    keep_map: bool = False,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
     the source has no usable velocity or bearing stream. ``link``: how a live source is read
     (a file ignores it). ``smooth`` (or ``smooth_jsonl``): afterwards, every target's
     estimate from the whole log (:mod:`mav_observer.smoother`), in the summary and, one
-    record per bearing, in ``smooth_jsonl`` (``docs/schema.md``)."""
+    record per bearing, in ``smooth_jsonl`` (``docs/schema.md``). ``keep_map``: the
+    summary's ``map_tracks`` for ``--geojson`` and ``--kml`` (:mod:`mav_observer.mapexport`)."""
     tracker = Tracker(tracker_config)
     smooth = smooth or smooth_jsonl is not None
     if smooth:
         tracker.sample_log = smoother.SampleLog()
     exc_min = tracker.config.observer.excitation_min
     summary = ReplaySummary(source=source)
+    if keep_map:
+        summary.map_tracks = MapTracks()
+    map_tracks = summary.map_tracks
     if is_file_source(source):
         summary.bytes_total = Path(source).stat().st_size
     t0 = time.perf_counter()
@@ -405,6 +413,8 @@ def replay(
                         writer.writerow(r.csv_row())
                     if keep_series:
                         summary.series.setdefault(key, Series()).add(r)
+                    if map_tracks is not None:
+                        map_tracks.add(r)
                     summary.estimates_written += 1
 
             for n, (t, msg) in enumerate(messages, 1):

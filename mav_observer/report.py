@@ -33,9 +33,13 @@ def plot_replay(
     errors: dict[str, dict[str, Any]] | None = None,
     excitation_min: float = 0.01,
     events: list[tuple[float, int, str]] | None = None,
+    maps: Any = None,
 ) -> None:
     """Write the report for ``series`` (``{"sysid/target": Series}``) to ``path``;
-    ``events``: ``(t_boot_s, sysid, name)`` marked on the panels of that vehicle."""
+    ``events``: ``(t_boot_s, sysid, name)`` marked on the panels of that vehicle; ``maps``
+    (:class:`mav_observer.mapexport.MapTracks`): a map panel below (the vehicle's track, the
+    estimates, the final estimate and its 2-sigma ellipse, longitude and latitude), for the
+    targets that have a place on the map."""
     try:
         import matplotlib
 
@@ -48,9 +52,20 @@ def plot_replay(
     if not keys:
         raise PlotError("nothing to plot: no estimates")
     rows = 4 if errors else 3
+    with_map = bool(maps) and any(k in maps.tracks and maps.tracks[k].estimates for k in keys)
+    heights = [1.0] * rows + ([2.2] if with_map else [])
     fig, axes = plt.subplots(
-        rows, len(keys), figsize=(7.0 * len(keys), 2.6 * rows), sharex="col", squeeze=False
+        len(heights),
+        len(keys),
+        figsize=(7.0 * len(keys), 2.6 * sum(heights)),
+        squeeze=False,
+        gridspec_kw={"height_ratios": heights},
     )
+    for col in range(len(keys)):  # the time panels share their time axis (not the map)
+        for r in range(1, rows):
+            axes[r][col].sharex(axes[0][col])
+        if with_map:
+            _map_panel(axes[rows][col], maps.tracks.get(keys[col]))
     for col, key in enumerate(keys):
         s = series[key]
         t = np.asarray(s.t_boot_s)
@@ -130,3 +145,35 @@ def plot_replay(
         raise PlotError(f"cannot write the plot: {exc}") from exc
     finally:
         plt.close(fig)
+
+
+def _map_panel(ax: Any, track: Any) -> None:
+    """The map of one target: the vehicle's track, the estimates, the final estimate and its
+    2-sigma ellipse (longitude, latitude; the aspect of the local scale)."""
+    import math
+
+    from mav_observer import mapexport
+
+    if track is None or not track.estimates:
+        ax.set_axis_off()
+        return
+    veh = track.vehicle
+    ax.plot([p[0] for p in veh], [p[1] for p in veh], "-", color="0.5", lw=0.8, label="vehicle")
+    est = track.estimates
+    ax.plot([p[1] for p in est], [p[2] for p in est], ".", ms=2, color="C0", label="estimates")
+    fin = mapexport.final_estimate(track)
+    if fin is not None:
+        props, ring = fin
+        if ring is not None:
+            ax.plot([p[0] for p in ring], [p[1] for p in ring], "r-", lw=0.8,
+                    label="final, 2 sigma")  # fmt: skip
+        ax.plot([props["lon_deg"]], [props["lat_deg"]], "r+", ms=10, label="final estimate")
+        lat0 = props["lat_deg"]
+    else:
+        lat0 = est[-1][2]
+    ax.set_aspect(1.0 / max(math.cos(math.radians(lat0)), 1e-3))
+    ax.set_xlabel("longitude (deg)")
+    ax.set_ylabel("latitude (deg)")
+    ax.ticklabel_format(useOffset=False)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
