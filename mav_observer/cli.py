@@ -133,6 +133,12 @@ def _add_run_parser(sub: Any) -> None:
         "--signing-key-file",
         help="MAVLink 2 signing: a file holding the key (64 hex digits) or a passphrase",
     )
+    run.add_argument(
+        "--mavlink-out",
+        metavar="URL",
+        help="send converged estimates back over MAVLink (LANDING_TARGET, STATUSTEXT) to URL; "
+        "'input': over the input connection (docs/geolocation.md)",
+    )
     add_estimation_flags(run)
     run.add_argument("--duration", type=float, help="stop after this many seconds")
     run.add_argument(
@@ -272,6 +278,8 @@ SETTING_FLAGS: dict[str, str] = {
     "mavlink.url": "--mavlink",
     "mavlink.stale_after_s": "--stale-after-s",
     "mavlink.signing_key_file": "--signing-key-file",
+    "mavlink.out": "--mavlink-out",
+    "mavlink.out_url": "--mavlink-out",
     "zenoh.config_file": "--zenoh-config",
     "zenoh.mode": "--zenoh-mode",
     "zenoh.listen": "--zenoh-listen",
@@ -294,6 +302,10 @@ def run_overrides(args: argparse.Namespace) -> dict[str, dict[str, object]]:
     put("mavlink", "url", args.mavlink)
     put("mavlink", "stale_after_s", args.stale_after_s)
     put("mavlink", "signing_key_file", args.signing_key_file)
+    if args.mavlink_out is not None:
+        put("mavlink", "out", True)
+        if args.mavlink_out != "input":
+            put("mavlink", "out_url", args.mavlink_out)
     put("zenoh", "config_file", args.zenoh_config)
     put("zenoh", "mode", args.zenoh_mode)
     put("zenoh", "listen", args.zenoh_listen)

@@ -38,6 +38,7 @@ from mav_observer.errors import MavObserverError
 from mav_observer.mavlink import signing
 from mav_observer.mavlink.connection import ConnectionReader
 from mav_observer.mavlink.dialect import type_key
+from mav_observer.mavlink.out import MavlinkOut, OutConfig
 from mav_observer.mavlink.tracker import Tracker
 from mav_observer.records import STATUS_SCHEMA, EstimateRecord
 from mav_observer.settings import Settings
@@ -120,6 +121,24 @@ class Service:
         self._next_save = self._start_mono + self.save_period_s
         self._link_state = "waiting"
         self._last_any_mono: float | None = None
+        m = settings["mavlink"]
+        #: the estimates sent back over MAVLink (``[mavlink] out``), if on
+        self.mavlink_out: MavlinkOut | None = None
+        self._out_link: ConnectionReader | None = None
+        if m["out"]:
+            cfg = OutConfig(True, m["out_url"], tuple(m["out_targets"]), float(m["out_rate_hz"]),
+                            bool(m["out_statustext"]))  # fmt: skip
+            send = self.reader.send
+            if cfg.url is not None:
+                key_file = m["signing_key_file"]
+                self._out_link = ConnectionReader(
+                    cfg.url,
+                    heartbeat_period_s=None,
+                    signing_key=None if key_file is None else signing.load_key(key_file),
+                    signing_link_id=m["signing_link_id"],
+                )
+                send = self._out_link.send
+            self.mavlink_out = MavlinkOut(cfg, send)
 
     # -- construction -----------------------------------------------------------------
     @classmethod
@@ -178,6 +197,8 @@ class Service:
             self._publish_status(view, now, final=True)
         self.save_state()
         self.reader.close()
+        if self._out_link is not None:
+            self._out_link.close()
         self.pub.close()
         log.info("stopped after %d messages", self.messages)
 
@@ -245,6 +266,9 @@ class Service:
             tgt.next_pub_mono = nxt
             tgt.published += 1
             self.pub.estimate(view.sysid, rec.target, rec.to_json())
+        if self.mavlink_out is not None:
+            rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
+            self.mavlink_out.on_estimate(rec, rpy, now)
 
     # -- housekeeping -------------------------------------------------------------------
     def housekeeping(self, now: float) -> None:

@@ -334,6 +334,24 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
             "and wrongly signed messages are refused and counted",
         ),
         "signing_link_id": (0, _int(0, 255), "link id in the signatures of what we send"),
+        "out": (
+            False,
+            _bool,
+            "send the estimates back over MAVLink: LANDING_TARGET (position form) for converged "
+            "targets and STATUSTEXT with their latitude and longitude (docs/geolocation.md)",
+        ),
+        "out_url": (
+            None,
+            _optional(_mavlink_url),
+            "where to send them (unset: over the input connection)",
+        ),
+        "out_targets": (
+            [],
+            _list_of(_string),
+            "the targets sent as LANDING_TARGET and STATUSTEXT (empty: every target)",
+        ),
+        "out_rate_hz": (4.0, _number(0.0, lo_open=True), "most LANDING_TARGET per s per target"),
+        "out_statustext": (True, _bool, "also a STATUSTEXT when a target converges or moves"),
     },
     "zenoh": {
         "config_file": (

@@ -398,3 +398,47 @@ def test_fuzzed_garbage_among_a_valid_stream_is_counted_and_changes_nothing(
     assert max(e[0] for e in errs) < 0.05
     assert max(e[1] for e in errs) < 0.1
     assert last[-1]["status"] == "converged"
+
+
+def test_mavlink_out_sends_the_converged_target_back_as_landing_target_and_statustext(
+    tmp_path: Path,
+) -> None:
+    """emitter -> the service with ``--mavlink-out udpout:...`` -> a pymavlink receiver here:
+    LANDING_TARGET in its position form with the target's local position within 0.5 m of
+    the emitter's (40, 30, 0), from our onboard-computer ids, and a STATUSTEXT with the
+    target's latitude and longitude."""
+    from mav_observer.geodesy import Origin, to_geodetic
+    from mav_observer.mavlink.dialect import connect
+    from sim.emitter import ORIGIN_ALT_M, ORIGIN_LAT_DEG, ORIGIN_LON_DEG
+
+    mav_port, z_port = ports()
+    out_port = free_port(socket.SOCK_DGRAM)
+    rx = connect(f"udpin:127.0.0.1:{out_port}", source_system=1, source_component=1)
+    got: dict[str, list[Any]] = {"LANDING_TARGET": [], "STATUSTEXT": []}
+    try:
+        with service(mav_port, z_port, tmp_path / "svc.log",
+                     "--mavlink-out", f"udpout:127.0.0.1:{out_port}"):  # fmt: skip
+            th, _ = emit(mav_port, duration_s=60.0, speed=10.0)
+            deadline = time.monotonic() + 30.0
+            while time.monotonic() < deadline and (
+                len(got["LANDING_TARGET"]) < 5 or not got["STATUSTEXT"]
+            ):
+                m = rx.recv_match(type=list(got), blocking=True, timeout=0.2)
+                if m is not None:
+                    got[m.get_type()].append(m)
+            th.join(timeout=10.0)
+    finally:
+        rx.close()
+    lt = got["LANDING_TARGET"]
+    assert len(lt) >= 5, (tmp_path / "svc.log").read_text()[-3000:]
+    last = lt[-1]
+    assert (last.get_srcSystem(), last.get_srcComponent()) == (254, 191)
+    assert last.frame == 1 and last.position_valid == 1  # MAV_FRAME_LOCAL_NED
+    assert math.dist((last.x, last.y, last.z), (40.0, 30.0, 0.0)) < 0.5
+    assert last.distance > 10.0
+    text = got["STATUSTEXT"][0].text
+    assert text.startswith("gimbal: ")
+    lat, lon = (float(v) for v in text.split()[1:3])
+    origin = Origin(ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M, "GLOBAL_POSITION_INT")
+    lat_t, lon_t, _ = to_geodetic(origin, (40.0, 30.0, 0.0))
+    assert abs(lat - lat_t) < 2e-5 and abs(lon - lon_t) < 2e-5  # the text's 5 decimals

@@ -241,6 +241,28 @@ class ConnectionReader:
         )
         self.heartbeats_sent += 1
 
+    def send(self, msg: Any) -> bool:
+        """Send the pymavlink message ``msg`` from our system and component (signed when a
+        key is set), opening the link if it is not open; ``False`` (counted in
+        :attr:`link_errors`, never raised) when it cannot be sent now. A ``udpin`` link sends
+        to the peer it last heard from (nothing before it has heard one)."""
+        if self._closed:
+            return False
+        if self._conn is None:
+            if time.monotonic() < self._retry_at:
+                return False
+            try:
+                self.open()
+            except OSError as exc:
+                self._drop_link(exc)
+                return False
+        try:
+            self._conn.mav.send(msg)
+        except OSError as exc:
+            self._drop_link(exc)
+            return False
+        return True
+
     def close(self) -> None:
         self._closed = True
         self._close_link()

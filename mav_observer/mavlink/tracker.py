@@ -960,6 +960,12 @@ class Tracker:
                 vpos = (p[0] + (u[0] - a0) * dt, p[1] + (u[1] - a1) * dt, p[2] + (u[2] - a2) * dt)
         out.append(EstimateRecord(t_arrival, tb, veh.sysid, target, source, est, vpos, veh.origin))
 
+    def vehicle_attitude(self, sysid: int, t_boot_s: float) -> tuple[float, float, float] | None:
+        """Vehicle ``sysid``'s roll, pitch, yaw (rad) at ``t_boot_s`` (its autopilot clock),
+        interpolated as for the bearings, or ``None`` when unknown there."""
+        veh = self.vehicles.get(sysid)
+        return None if veh is None else self._vehicle_attitude(veh, t_boot_s)
+
     def origin(self, sysid: int) -> dict[str, float | str] | None:
         """The local frame's origin of vehicle ``sysid`` on WGS84 (latitude and longitude
         deg, altitude m AMSL, the message it came from), or ``None`` while unknown."""
