@@ -127,7 +127,7 @@ class Service:
         self._out_link: ConnectionReader | None = None
         if m["out"]:
             cfg = OutConfig(True, m["out_url"], tuple(m["out_targets"]), float(m["out_rate_hz"]),
-                            bool(m["out_statustext"]))  # fmt: skip
+                            bool(m["out_statustext"]), m["out_frame"])  # fmt: skip
             send = self.reader.send
             if cfg.url is not None:
                 key_file = m["signing_key_file"]

@@ -352,6 +352,11 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
         ),
         "out_rate_hz": (4.0, _number(0.0, lo_open=True), "most LANDING_TARGET per s per target"),
         "out_statustext": (True, _bool, "also a STATUSTEXT when a target converges or moves"),
+        "out_frame": (
+            "local_ned",
+            _choice("local_ned", "body_frd"),
+            "LANDING_TARGET's frame: local_ned (PX4) or body_frd (ArduPilot)",
+        ),
     },
     "zenoh": {
         "config_file": (

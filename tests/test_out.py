@@ -104,3 +104,14 @@ def test_with_a_signing_key_what_is_sent_is_signed_and_verifies() -> None:
         buf = bytes(m.get_msgbuf())
         assert buf[2] & 0x01 and buf[-13] == 9  # signed, on our link id
         assert (m.get_srcSystem(), m.get_srcComponent()) == (254, 191)
+
+
+def test_the_body_frame_form_for_ardupilot_is_the_relative_position_in_the_body_frame() -> None:
+    rpy = (0.1, -0.05, 1.2)
+    m = landing_target(_rec(), 0, rpy, frame="body_frd")
+    assert (m.frame, m.position_valid) == (12, 1)  # MAV_FRAME_BODY_FRD
+    r = euler_to_dcm(*rpy)
+    back = [sum(r[i][j] * (m.x, m.y, m.z)[j] for j in range(3)) for i in range(3)]
+    assert back == pytest.approx([10.0, 5.0, 12.0])  # the relative position, NED
+    assert m.distance == pytest.approx(math.sqrt(m.x**2 + m.y**2 + m.z**2))
+    assert landing_target(_rec(), 0, None, frame="body_frd") is None  # needs the attitude

@@ -2,15 +2,23 @@
 (``[mavlink] out = true``, ``run --mavlink-out URL``; ``docs/geolocation.md``).
 
 * **LANDING_TARGET** for each chosen target whose estimate is ``converged``, at most
-  ``out_rate_hz`` per target: ``frame`` MAV_FRAME_LOCAL_NED, ``x, y, z`` the target in the
-  autopilot's local frame (``target_pos_ned_m``), ``position_valid`` 1, ``distance`` the
-  range, ``angle_x, angle_y`` the line of sight in the vehicle's body frame (FRD) as a
-  downward camera reports it (``(-tan angle_y, tan angle_x, 1)`` along it, the convention
-  the tracker reads, :func:`mav_observer.mavlink.adapters.landing_target_direction`; 0 when
-  the target is not below the vehicle's body plane or the attitude is unknown),
-  ``time_usec`` the estimate's time on the autopilot clock (µs since boot), ``target_num``
-  the target's number (``landing_target_<n>``: ``n``; otherwise its place in
-  ``out_targets``, or 0), ``type`` LANDING_TARGET_TYPE_VISION_OTHER, ``q`` identity.
+  ``out_rate_hz`` per target, ``position_valid`` 1:
+
+  - ``out_frame = "local_ned"`` (the default; what PX4 reads): ``frame``
+    MAV_FRAME_LOCAL_NED, ``x, y, z`` the target in the autopilot's local frame
+    (``target_pos_ned_m``);
+  - ``out_frame = "body_frd"`` (what ArduPilot reads: it refuses the local frame):
+    ``frame`` MAV_FRAME_BODY_FRD, ``x, y, z`` the target relative to the vehicle in its
+    body frame (needs the vehicle's attitude at the estimate's time);
+
+  ``distance`` the range (the norm of the relative position: ArduPilot divides the body
+  ``x, y, z`` by it), ``angle_x, angle_y`` the line of sight in the body frame as a downward
+  camera reports it (``(-tan angle_y, tan angle_x, 1)`` along it, the convention the tracker
+  reads, :func:`mav_observer.mavlink.adapters.landing_target_direction`; 0 when the target
+  is not below the body's x-y plane or the attitude is unknown), ``time_usec`` the
+  estimate's time on the autopilot clock (us since boot), ``target_num`` the target's number
+  (``landing_target_<n>``: ``n``; otherwise its place in ``out_targets``, or 0), ``type``
+  LANDING_TARGET_TYPE_VISION_OTHER, ``q`` identity.
 * **STATUSTEXT** (MAV_SEVERITY_INFO) when a target converges, or when its estimate has
   moved by more than its horizontal 1-sigma since the last one sent, and its place on the
   map is known: ``gimbal: -35.36290 149.16556 584m +-0.8m`` (the way ground stations show
@@ -34,6 +42,7 @@ from mav_observer.mavlink.dialect import mavlink
 from mav_observer.records import EstimateRecord
 
 MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
 LANDING_TARGET_TYPE_VISION_OTHER = 3
 MAV_SEVERITY_INFO = 6
 #: STATUSTEXT's text field holds this many characters.
@@ -49,6 +58,9 @@ class OutConfig:
     targets: tuple[str, ...] = ()
     rate_hz: float = 4.0
     statustext: bool = True
+    #: ``"local_ned"`` (PX4 reads this form) or ``"body_frd"`` (ArduPilot's: it refuses
+    #: MAV_FRAME_LOCAL_NED)
+    frame: str = "local_ned"
 
     def chosen(self, target: str) -> bool:
         return not self.targets or target in self.targets
@@ -78,27 +90,40 @@ def body_angles(
 
 
 def landing_target(
-    rec: EstimateRecord, target_num: int, rpy_rad: tuple[float, float, float] | None
+    rec: EstimateRecord,
+    target_num: int,
+    rpy_rad: tuple[float, float, float] | None,
+    frame: str = "local_ned",
 ) -> Any:
     """LANDING_TARGET of ``rec`` in its position form (see the module docstring), or ``None``
-    without a target position in the local frame."""
-    tp = rec.target_pos_ned_m
-    if tp is None or not all(math.isfinite(v) for v in tp):
-        return None
+    without a target position (``frame`` ``"local_ned"``: in the local frame; ``"body_frd"``:
+    relative to the vehicle in its body frame, which needs the attitude ``rpy_rad``)."""
     x = rec.estimate.x_m
-    ax, ay = body_angles((float(x[0]), float(x[1]), float(x[2])), rpy_rad)
+    rel = (float(x[0]), float(x[1]), float(x[2]))
+    if frame == "body_frd":
+        if rpy_rad is None or not all(math.isfinite(v) for v in rel):
+            return None
+        r = euler_to_dcm(*rpy_rad)  # body to NED; its transpose takes NED to body
+        pos = tuple(sum(r[i][j] * rel[i] for i in range(3)) for j in range(3))
+        mav_frame = MAV_FRAME_BODY_FRD
+    else:
+        tp = rec.target_pos_ned_m
+        if tp is None or not all(math.isfinite(v) for v in tp):
+            return None
+        pos, mav_frame = tp, MAV_FRAME_LOCAL_NED
+    ax, ay = body_angles(rel, rpy_rad)
     return mavlink.MAVLink_landing_target_message(
         max(0, round(rec.t_boot_s * 1e6)),
         target_num,
-        MAV_FRAME_LOCAL_NED,
+        mav_frame,
         ax,
         ay,
-        float(rec.estimate.range_m),
+        math.sqrt(sum(c * c for c in rel)),
         0.0,
         0.0,
-        tp[0],
-        tp[1],
-        tp[2],
+        pos[0],
+        pos[1],
+        pos[2],
         [1.0, 0.0, 0.0, 0.0],
         LANDING_TARGET_TYPE_VISION_OTHER,
         1,
@@ -151,7 +176,7 @@ class MavlinkOut:
         st = self._state.setdefault((rec.sysid, rec.target), _Sent())
         converged = str(rec.estimate.status) == "converged"
         if converged and now_mono >= st.next_lt_mono:
-            msg = landing_target(rec, cfg.target_num(rec.target), rpy_rad)
+            msg = landing_target(rec, cfg.target_num(rec.target), rpy_rad, cfg.frame)
             if msg is not None:
                 st.next_lt_mono = now_mono + 1.0 / cfg.rate_hz
                 self._send(msg, "LANDING_TARGET")
