@@ -658,12 +658,15 @@ def test_gps_global_origin_wins_and_global_position_pairs_with_local_position() 
     o = tr.vehicles[1].origin
     assert o is not None and o.source == "GLOBAL_POSITION_INT"
     assert o.alt_m == pytest.approx(HOME_LL[2] - 10.0, abs=0.01)  # the vehicle 10 m up
+    gpi_id = _gpi(1, *HOME_LL).get_msgId()
+    assert gpi_id not in tr.redundant_message_ids()  # it places the origin: still decoded
     tr.handle(T0_UNIX + 0.2, _home(0.0, 0.0, 0.0))
     assert tr.vehicles[1].origin.source == "HOME_POSITION"
     ggo = message("GPS_GLOBAL_ORIGIN", -353600000, 1491600000, 580_000)
     tr.handle(T0_UNIX + 0.3, ggo)
     o = tr.vehicles[1].origin
     assert (o.source, o.lat_deg, o.lon_deg, o.alt_m) == ("GPS_GLOBAL_ORIGIN", -35.36, 149.16, 580.0)
+    assert gpi_id in tr.redundant_message_ids()  # a better origin: no need to decode it
     tr.handle(T0_UNIX + 0.4, _home(5.0, 5.0, 0.0))
     tr.handle(T0_UNIX + 0.5, _gpi(100_500, -35.0, 149.0, 100.0))
     tr.handle(T0_UNIX + 0.5, lpn(100_500, (30.0, 40.0, -10.0)))

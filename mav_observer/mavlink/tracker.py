@@ -974,10 +974,17 @@ class Tracker:
 
     def redundant_message_ids(self) -> frozenset[int]:
         """Ids that need no decoding any more: ATTITUDE_QUATERNION once ATTITUDE is arriving
-        (both give the vehicle attitude)."""
+        (both give the vehicle attitude); GLOBAL_POSITION_INT once every vehicle's origin
+        comes from a more trusted source (it can no longer move it)."""
+        out = set()
         if self.used.get("ATTITUDE"):
-            return frozenset({MSG_ID["ATTITUDE_QUATERNION"]})
-        return frozenset()
+            out.add(MSG_ID["ATTITUDE_QUATERNION"])
+        if self.vehicles and all(
+            v.origin is not None and v.origin.source != "GLOBAL_POSITION_INT"
+            for v in self.vehicles.values()
+        ):
+            out.add(MSG_ID["GLOBAL_POSITION_INT"])
+        return frozenset(out)
 
     # -- persistence ------------------------------------------------------------------
     def export_state(self) -> list[dict[str, Any]]:
