@@ -473,9 +473,11 @@ def run_one(
     duration_s: float,
     workdir: str | None = None,
     defaults: bool = False,
+    keep_records: bool = False,
 ) -> dict:
     """Emit, replay and score one run of a case (a process-pool task); ``defaults``: the
-    product's default settings instead of the case's (the noise not told)."""
+    product's default settings instead of the case's (the noise not told); ``keep_records``:
+    the run's estimate records and truth too (``records``, ``truth``)."""
     case = CASES[case_name]
     if defaults:
         case = replace(case, settings={})
@@ -533,6 +535,8 @@ def run_one(
         outliers=None if noise_end is None else noise_end.outliers,
         reacquisitions=None if noise_end is None else noise_end.reacquisitions,
     )
+    if keep_records:
+        m.update(records=records, truth=truth)
     return m
 
 
