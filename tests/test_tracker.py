@@ -678,3 +678,15 @@ def test_an_impossible_origin_is_skipped_and_counted() -> None:
     tr.handle(T0_UNIX, message("GPS_GLOBAL_ORIGIN", 950_000_000, 0, 0))  # latitude 95 deg
     assert tr.vehicles[1].origin is None
     assert tr.skipped["out_of_range"] == 1
+
+
+def test_a_better_source_at_the_same_place_is_no_origin_change() -> None:
+    # GLOBAL_POSITION_INT places the origin; HOME_POSITION then says the same: a better
+    # source, the origin kept in place, nothing counted as a move
+    tr = Tracker(TrackerConfig())
+    tr.handle(T0_UNIX, _gpi(100_000, *HOME_LL))
+    tr.handle(T0_UNIX, lpn(100_000, (0.0, 0.0, 0.0)))
+    assert tr.vehicles[1].origin.source == "GLOBAL_POSITION_INT"
+    tr.handle(T0_UNIX + 0.1, _home(0.0, 0.0, 0.0))
+    assert tr.vehicles[1].origin.source == "HOME_POSITION"
+    assert "origin_changed" not in tr.events
