@@ -191,6 +191,15 @@ class BiasObserver:
         p = self._est.output(self._streams).p
         return None if p is None else p.copy()
 
+    def predicted_displacement_m(self, t0_s: float, t1_s: float) -> list[float] | None:
+        """The integral of ``v`` (the paper's, ``-u``) from ``t0_s`` to ``t1_s`` (m) as the
+        estimates are predicted with it: the velocity samples, and past the latest the held
+        velocity or a sparse stream's trend (``docs/frames.md``, "Sparse velocity"); ``None``
+        before any velocity. ``x`` moves by it plus ``a`` times the span."""
+        if not self._streams.velocities:
+            return None
+        return self._streams.predicted_displacement(t0_s, t1_s)
+
     @property
     def status(self) -> Status:
         """The status of the latest estimate (``stale`` before any)."""

@@ -867,3 +867,11 @@ def test_a_state_saved_before_the_bias_walk_was_learnt_restores_with_none() -> N
     d["kalman"]["bank"]["walk_x"] = [[1.0, 2.0]]  # a bad shape is refused, naming it
     with pytest.raises(StateError, match="walk_x"):
         BiasObserver.from_dict(d)
+
+
+def test_the_predicted_displacement_is_the_velocity_held_past_the_latest_sample() -> None:
+    obs = BiasObserver(ObserverConfig())
+    assert obs.predicted_displacement_m(0.0, 1.0) is None  # no velocity yet
+    obs.update_velocity_values(0.0, [1.0, -2.0, 0.5])
+    obs.update_velocity_values(1.0, [1.0, -2.0, 0.5])
+    assert obs.predicted_displacement_m(1.0, 1.5) == pytest.approx([0.5, -1.0, 0.25])
