@@ -442,3 +442,41 @@ def test_mavlink_out_sends_the_converged_target_back_as_landing_target_and_statu
     origin = Origin(ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M, "GLOBAL_POSITION_INT")
     lat_t, lon_t, _ = to_geodetic(origin, (40.0, 30.0, 0.0))
     assert abs(lat - lat_t) < 2e-5 and abs(lon - lon_t) < 2e-5  # the text's 5 decimals
+
+
+def test_mavlink_out_over_the_input_connection_answers_the_peer_it_hears(tmp_path: Path) -> None:
+    """``--mavlink-out input``: the service sends LANDING_TARGET back over its ``udpin`` link,
+    to the peer it hears (a companion's router): the socket that sends the telemetry gets
+    the answers."""
+    from mav_observer.mavlink.dialect import connect
+    from sim.inject import split_records
+
+    tl = tmp_path / "orbit.tlog"
+    emitter.run(
+        emitter.Emitter(scenarios.orbit(duration_s=90.0),
+                        emitter.EmitterConfig(duration_s=90.0, bearing_noise_deg=0.5, seed=4)),
+        tlog=tl,
+    )  # fmt: skip
+    frames = [(r.t_us, r.frame) for r in split_records(tl.read_bytes()) if r.t_us is not None]
+    mav_port, z_port = ports()
+    got = []
+    with service(mav_port, z_port, tmp_path / "svc.log", "--mavlink-out", "input"):
+        peer = connect(f"udpout:127.0.0.1:{mav_port}", source_system=1, source_component=1)
+        try:
+            t0 = frames[0][0]
+            start = time.monotonic()
+            for t_us, fr in frames:  # 20 times real time, replies read in between
+                while time.monotonic() - start < (t_us - t0) * 5e-8:
+                    m = peer.recv_match(type="LANDING_TARGET", blocking=True, timeout=0.005)
+                    if m is not None:
+                        got.append(m)
+                peer.write(fr)
+            deadline = time.monotonic() + 3.0
+            while time.monotonic() < deadline and len(got) < 3:
+                m = peer.recv_match(type="LANDING_TARGET", blocking=True, timeout=0.05)
+                if m is not None:
+                    got.append(m)
+        finally:
+            peer.close()
+    assert len(got) >= 3, (tmp_path / "svc.log").read_text()[-2000:]
+    assert math.dist((got[-1].x, got[-1].y, got[-1].z), (40.0, 30.0, 0.0)) < 0.5
