@@ -142,6 +142,15 @@ def _quadratic(lat0: float, lon0: float, alt0: float) -> tuple[tuple[float, ...]
     return (f0, *grad, *hess)
 
 
+def gap_m(a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
+    """The larger of the horizontal and vertical distances (m) between two points given as
+    (latitude deg, longitude deg, altitude m); the horizontal one on a sphere of the mean
+    earth radius (within 0.5 %: for thresholds, not for scoring)."""
+    dn = math.radians(a[0] - b[0]) * 6.371e6
+    de = math.radians(math.remainder(a[1] - b[1], 360.0)) * 6.371e6 * math.cos(math.radians(b[0]))
+    return max(math.hypot(dn, de), abs(a[2] - b[2]))
+
+
 def to_geodetic(origin: Origin, ned_m: tuple[float, float, float]) -> tuple[float, float, float]:
     """``ned_m`` (m, in the frame of ``origin``) as (latitude deg, longitude deg, altitude m
     AMSL): within :data:`LOCAL_RADIUS_M` of the origin and away from the poles (within

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 import pymap3d
 
-from bench.accuracy import blocks, core
+from bench.accuracy import blocks, core, geo
 from mav_observer import settings as st
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
@@ -453,17 +453,12 @@ def _geodetic_errors(
     t = np.array([r["t_boot_s"] for r in recs])
     tp_i = np.column_stack([np.interp(t, tt[order], tp[:, i]) for i in range(3)])
     lat0, lon0, alt0 = em.ORIGIN_LAT_DEG, em.ORIGIN_LON_DEG, em.ORIGIN_ALT_M
-    lat_t, lon_t, alt_t = pymap3d.ned2geodetic(tp_i[:, 0], tp_i[:, 1], tp_i[:, 2], lat0, lon0, alt0)
-    lat = np.array([r["target_lat_deg"] for r in recs])
-    lon = np.array([r["target_lon_deg"] for r in recs])
-    alt = np.array([r["target_alt_m"] for r in recs])
-    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, lat_t, lon_t, alt_t)
-    h = np.hypot(n, e)
-    h_std = np.array([r["target_h_std_m"] for r in recs], dtype=float)
+    truth_ll = pymap3d.ned2geodetic(tp_i[:, 0], tp_i[:, 1], tp_i[:, 2], lat0, lon0, alt0)
+    err = geo.map_errors(recs, *truth_ll)
     return {
-        "geo_h_med_m": float(np.median(h)),
-        "geo_v_med_m": float(np.median(np.abs(d))),
-        "geo_h_within_2sd": float(np.mean(h <= 2.0 * h_std)),
+        "geo_h_med_m": err["h_median_m"],
+        "geo_v_med_m": err["v_median_m"],
+        "geo_h_within_2sd": err["within_2sd"],
     }
 
 

@@ -32,6 +32,25 @@ from sim.tlogs import find_tlogs
 LOG = "ardupilot_sitl_servo_mount_roi.tlog"
 
 
+def map_errors(recs: list[dict[str, Any]], lat_t: Any, lon_t: Any, alt_t: Any) -> dict[str, float]:
+    """Records' ``target_lat_deg``, ``target_lon_deg``, ``target_alt_m`` against the true
+    latitude, longitude and altitude (scalars or one per record): the median horizontal and
+    vertical errors (m, pymap3d) and the share of records whose horizontal error is within
+    twice their ``target_h_std_m``."""
+    lat = np.array([r["target_lat_deg"] for r in recs])
+    lon = np.array([r["target_lon_deg"] for r in recs])
+    alt = np.array([r["target_alt_m"] for r in recs])
+    h_std = np.array([r["target_h_std_m"] for r in recs], dtype=float)
+    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, lat_t, lon_t, alt_t)
+    h = np.hypot(n, e)
+    return {
+        "h_median_m": float(np.median(h)),
+        "v_median_m": float(np.median(np.abs(d))),
+        "within_2sd": float(np.mean(h <= 2.0 * h_std)),
+        "h_std_median_m": float(np.median(h_std)),
+    }
+
+
 def score_log(log: Path, meta: dict[str, Any], tracker: TrackerConfig) -> dict[str, Any]:
     """Replay ``log`` and score its records against the ROI of ``meta``."""
     roi = (meta["roi_lat"], meta["roi_lon"], meta["home_alt_amsl_m"] + meta["roi_alt_rel_home_m"])
@@ -45,12 +64,6 @@ def score_log(log: Path, meta: dict[str, Any], tracker: TrackerConfig) -> dict[s
     t = np.array([r["t_boot_s"] for r in recs])
     last = t >= t[0] + (t[-1] - t[0]) * 2.0 / 3.0
     sel = [r for r, k in zip(recs, last, strict=True) if k]
-    lat = np.array([r["target_lat_deg"] for r in sel])
-    lon = np.array([r["target_lon_deg"] for r in sel])
-    alt = np.array([r["target_alt_m"] for r in sel])
-    h_std = np.array([r["target_h_std_m"] for r in sel], dtype=float)
-    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, *roi)
-    h = np.hypot(n, e)
     origin = None
     for ts in summary.targets.values():
         if ts.final is not None and ts.final.origin is not None:
@@ -58,10 +71,7 @@ def score_log(log: Path, meta: dict[str, Any], tracker: TrackerConfig) -> dict[s
     return {
         "records": len(recs),
         "scored": len(sel),
-        "h_median_m": float(np.median(h)),
-        "v_median_m": float(np.median(np.abs(d))),
-        "within_2sd": float(np.mean(h <= 2.0 * h_std)),
-        "h_std_median_m": float(np.median(h_std)),
+        **map_errors(sel, *roi),
         "origin": origin,
         "events": dict(summary.events),
     }

@@ -194,18 +194,6 @@ class TrackerConfig:
         return frozenset(MSG_ID[n] for n in names)
 
 
-def _gap_m(lat1: float, lon1: float, alt1: float, lat2: float, lon2: float, alt2: float) -> float:
-    """The larger of the horizontal (on a sphere: for thresholds of centimetres to metres)
-    and the vertical distances between two geodetic points (deg, deg, m)."""
-    dn = math.radians(lat1 - lat2) * 6.371e6
-    de = math.radians(math.remainder(lon1 - lon2, 360.0)) * 6.371e6 * math.cos(math.radians(lat2))
-    return max(math.hypot(dn, de), abs(alt1 - alt2))
-
-
-def _origin_gap_m(a: Origin, b: Origin) -> float:
-    return _gap_m(a.lat_deg, a.lon_deg, a.alt_m, b.lat_deg, b.lon_deg, b.alt_m)
-
-
 @dataclass
 class _Waiting:
     """A bearing message waiting for the vehicle attitude of its time."""
@@ -727,14 +715,24 @@ class Tracker:
                 except InvalidSampleError as exc:
                     raise Skip("out_of_range", str(exc)) from exc
                 lat, lon, alt = geodesy.to_geodetic(cur, ned)
-                if _gap_m(lat, lon, alt, lat_deg, lon_deg, alt_m) <= ORIGIN_MOVED_M[source]:
+                if (
+                    geodesy.gap_m((lat, lon, alt), (lat_deg, lon_deg, alt_m))
+                    <= ORIGIN_MOVED_M[source]
+                ):
                     return
         try:
             origin = geodesy.origin_from(lat_deg, lon_deg, alt_m, ned, source)
         except InvalidSampleError as exc:
             raise Skip("out_of_range", str(exc)) from exc
         veh.origin = origin
-        moved = cur is not None and _origin_gap_m(cur, origin) > ORIGIN_MOVED_M[source]
+        moved = (
+            cur is not None
+            and geodesy.gap_m(
+                (cur.lat_deg, cur.lon_deg, cur.alt_m),
+                (origin.lat_deg, origin.lon_deg, origin.alt_m),
+            )
+            > ORIGIN_MOVED_M[source]
+        )
         if moved:
             self._note(veh, "origin_changed")
         log.info(
