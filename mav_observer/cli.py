@@ -230,9 +230,9 @@ def add_estimation_flags(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--gimbal-angles",
-        choices=("flags", "body"),
-        help="gimbal quaternion: as its flags say (default), or relative to the body (servo "
-        "mounts)",
+        choices=("auto", "flags", "body"),
+        help="gimbal quaternion: as its flags say until the data show it body-relative "
+        "(auto, the default), as its flags say, or relative to the body (servo mounts)",
     )
     p.add_argument("--mount-status-yaw", choices=("vehicle", "earth"))
     p.add_argument("--landing-target-orientation", choices=("down", "forward"))

@@ -274,7 +274,11 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
             tc("sources", _list_of(_choice("auto", *SOURCES), allow_empty=False)),
             "",
         ),
-        "gimbal_angles": (d.gimbal_angles, tc("gimbal_angles", _string), "body: servo mounts"),
+        "gimbal_angles": (
+            d.gimbal_angles,
+            tc("gimbal_angles", _string),
+            "auto: flags until the data show body-relative angles; flags; body: servo mounts",
+        ),
         "mount_status_yaw": (d.mount_status_yaw, tc("mount_status_yaw", _string), ""),
         "landing_target_orientation": (
             d.landing_target_orientation,

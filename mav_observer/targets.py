@@ -110,6 +110,11 @@ class Targets:
         est = entry[0].update_bearing_values(t_s, y)
         return (est if entry[0].started else None), new
 
+    def restart(self, target: str) -> bool:
+        """Forget ``target``'s observer (its bearings were read wrongly): the next bearing
+        starts a new one. Returns whether there was one."""
+        return self._obs.pop(target, None) is not None
+
     # -- persistence ------------------------------------------------------------------
     def export(self, sysid: int, fix: VehicleFix) -> list[dict[str, Any]]:
         """Every started observer with what :meth:`resume` needs: the vehicle's fix and the

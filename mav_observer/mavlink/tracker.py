@@ -43,6 +43,7 @@ from mav_observer import geodesy
 from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
 from mav_observer.geodesy import Origin
+from mav_observer.gimbalframe import GimbalFrameDetector
 from mav_observer.mavlink import adapters, signing
 from mav_observer.mavlink.adapters import Skip
 from mav_observer.mavlink.attitude import AttitudeHistory
@@ -95,8 +96,10 @@ class TrackerConfig:
     """How messages become samples (``docs/frames.md``).
 
     * ``sources``: ``("auto",)`` or a subset of :data:`SOURCES`.
-    * ``gimbal_angles``: ``"flags"`` (trust GIMBAL_DEVICE_FLAGS) or ``"body"`` (the quaternion
-      is relative to the vehicle body: ArduPilot servo mounts, MNT1_TYPE 1).
+    * ``gimbal_angles``: ``"auto"`` (the flags are believed until the data show the angles
+      to be body-relative: :mod:`mav_observer.gimbalframe`), ``"flags"`` (trust
+      GIMBAL_DEVICE_FLAGS) or ``"body"`` (the quaternion is relative to the vehicle body:
+      ArduPilot servo mounts, MNT1_TYPE 1).
     * ``mount_status_yaw``: frame of MOUNT_STATUS yaw, ``"vehicle"`` (ArduPilot) or ``"earth"``.
     * ``landing_target_orientation``, ``landing_target_yaw_align_deg``: the landing-target
       camera on the body, as ArduPilot's PLND_ORIENT (``"down"`` or ``"forward"``) and
@@ -121,7 +124,7 @@ class TrackerConfig:
     """
 
     sources: tuple[str, ...] = ("auto",)
-    gimbal_angles: str = "flags"
+    gimbal_angles: str = "auto"
     mount_status_yaw: str = "vehicle"
     landing_target_orientation: str = "down"
     landing_target_yaw_align_deg: float = 0.0
@@ -141,9 +144,9 @@ class TrackerConfig:
         if bad or not srcs:
             raise ConfigError(f"sources must be 'auto' or among {SOURCES}, got {srcs!r}")
         object.__setattr__(self, "sources", srcs)
-        if self.gimbal_angles not in ("flags", "body"):
+        if self.gimbal_angles not in ("auto", "flags", "body"):
             raise ConfigError(
-                f"gimbal_angles must be 'flags' or 'body', got {self.gimbal_angles!r}"
+                f"gimbal_angles must be 'auto', 'flags' or 'body', got {self.gimbal_angles!r}"
             )
         if self.mount_status_yaw not in ("vehicle", "earth"):
             raise ConfigError(
@@ -243,6 +246,9 @@ class _Vehicle:
     #: time_boot_ms places the origin when nothing better has
     lpn_ms: tuple[int, Vec3] | None = None
     gpi_ms: tuple[int, tuple[float, float, float]] | None = None
+    #: per gimbal device id, what the data say its angles are relative to
+    #: (``gimbal_angles = "auto"``)
+    gimbal_frames: dict[int, GimbalFrameDetector] = field(default_factory=dict)
 
 
 class _Deferred(Exception):
@@ -748,10 +754,27 @@ class Tracker:
     # -- bearings ---------------------------------------------------------------------
     def _on_gimbal(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
-        needs = self.config.gimbal_angles == "body" or adapters.gimbal_needs_vehicle_yaw(
+        angles = self._gimbal_angles(veh, getattr(msg, "gimbal_device_id", 0))
+        needs = angles != "flags" or adapters.gimbal_needs_vehicle_yaw(
             msg.flags, getattr(msg, "delta_yaw", math.nan)
         )
         self._when_attitude(veh, tb, t, msg, out, self._gimbal_at, needs)
+
+    def _gimbal_angles(self, veh: _Vehicle, device: int) -> str:
+        """How gimbal ``device``'s angles are read: the setting, or with ``"auto"`` the
+        detector's decision (``"auto"`` while undecided: the flags, with the detector fed)."""
+        if self.config.gimbal_angles != "auto":
+            return self.config.gimbal_angles
+        det = veh.gimbal_frames.get(device)
+        return "auto" if det is None or det.decided is None else det.decided
+
+    def gimbal_angles(self, sysid: int) -> dict[int, str]:
+        """How vehicle ``sysid``'s gimbals' angles are read, by gimbal device id: ``"flags"``
+        or ``"body"`` (set, or decided from the data), ``"auto"`` while undecided."""
+        veh = self.vehicles.get(sysid)
+        if veh is None:
+            return {}
+        return {dev: self._gimbal_angles(veh, dev) for dev in sorted(veh.gimbal_frames)}
 
     def _gimbal_at(
         self, veh: _Vehicle, tb: float, t: float, msg: Any, out: list[EstimateRecord]
@@ -760,7 +783,11 @@ class Tracker:
         q = tuple(msg.q)
         delta_yaw = getattr(msg, "delta_yaw", math.nan)
         yaw = None if att is None else att[2]
-        if self.config.gimbal_angles == "body":
+        dev = getattr(msg, "gimbal_device_id", 0)
+        angles = self._gimbal_angles(veh, dev)
+        if angles == "auto":
+            angles = self._detect_gimbal_frame(veh, dev, tb, msg, att)
+        if angles == "body":
             r_cam = adapters.gimbal_camera_attitude(
                 q,
                 msg.flags,
@@ -777,10 +804,66 @@ class Tracker:
             )
             if "camera" in self.enabled:  # the full attitude is built only if a point needs it
                 veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
-        dev = getattr(msg, "gimbal_device_id", 0)
         target = "gimbal" if dev <= 1 else f"gimbal{dev}"
         if "gimbal" in self.enabled:
             self._bearing(veh, target, "GIMBAL_DEVICE_ATTITUDE_STATUS", tb, t, direction, out)
+
+    def _detect_gimbal_frame(
+        self,
+        veh: _Vehicle,
+        dev: int,
+        tb: float,
+        msg: Any,
+        att: tuple[float, float, float] | None,
+    ) -> str:
+        """Feed gimbal ``dev``'s frame detector with this message (``gimbal_angles =
+        "auto"``) and return the reading to use for it: ``"flags"`` until it decides."""
+        det = veh.gimbal_frames.get(dev)
+        if det is None:
+            det = veh.gimbal_frames[dev] = GimbalFrameDetector()
+        if att is None:
+            return "flags"
+        try:
+            b_flags = adapters.gimbal_boresight(
+                tuple(msg.q),
+                msg.flags,
+                msg.failure_flags,
+                vehicle_yaw=att[2],
+                delta_yaw=getattr(msg, "delta_yaw", math.nan),
+            )
+        except Skip:
+            return "flags"  # the stage itself skips it with its reason
+        r_nb = euler_to_dcm(*att)
+        if adapters.gimbal_yaw_frame(msg.flags) == "earth":
+            t_fb = r_nb
+        else:
+            new_style = msg.flags & (
+                adapters.GIMBAL_YAW_IN_VEHICLE_FRAME | adapters.GIMBAL_YAW_IN_EARTH_FRAME
+            )
+            dy = getattr(msg, "delta_yaw", math.nan)
+            yaw = dy if new_style and math.isfinite(dy) else att[2]
+            c, s = math.cos(yaw), math.sin(yaw)
+            # R_nb Rz(yaw)^T
+            t_fb = tuple((row[0] * c - row[1] * s, row[0] * s + row[1] * c, row[2]) for row in r_nb)
+        decided = det.add(tb, b_flags, t_fb)
+        if decided is not None:
+            ev = det.evidence()
+            self._note(veh, f"gimbal_angles_{decided}")
+            if decided == "body":  # its estimate so far read the angles wrongly
+                veh.targets.restart("gimbal" if dev <= 1 else f"gimbal{dev}")
+            log.log(
+                logging.WARNING if decided == "body" else logging.INFO,
+                "vehicle %d: gimbal %d's roll and pitch read as %s from %.1f s (the boresight "
+                "follows the vehicle's tilt %.2f +- %.2f of the way read by its flags)",
+                veh.sysid,
+                dev,
+                "body-relative (a servo mount)" if decided == "body" else "its flags say",
+                tb,
+                ev.beta,
+                ev.beta_se,
+            )
+            return decided
+        return "flags"
 
     def _on_mount_orientation(
         self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
