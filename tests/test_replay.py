@@ -82,6 +82,24 @@ def test_real_simulator_flight_finds_the_region_of_interest(tmp_path: Path) -> N
     assert s.events["reacquired"] >= 1  # counted, and said
 
 
+def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The servo mount flags its roll and pitch as horizon-relative but sends body angles:
+    with the default ``gimbal_angles = "auto"`` the tracker finds out once the vehicle
+    manoeuvres (72 s into the log), says so, and reads them as body angles; told ``flags``
+    it does not."""
+    log = TLOGS / "ardupilot_sitl_servo_mount_roi.tlog"
+    with caplog.at_level("WARNING", logger="mav_observer.mavlink.tracker"):
+        s = rp.replay(str(log))
+    assert s.events["gimbal_angles_body"] == 1
+    assert "gimbal_angles_flags" not in s.events
+    said = [r.getMessage() for r in caplog.records if "body-relative" in r.getMessage()]
+    assert len(said) == 1 and "from 72.0 s" in said[0], said
+    told = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="flags"))
+    assert "gimbal_angles_body" not in told.events
+
+
 def test_damaged_logs_replay_to_the_end_with_the_damage_counted() -> None:
     holes = rp.replay(
         str(TLOGS / "bad_zeroholes_tsback_132613.tlog"),

@@ -690,3 +690,49 @@ def test_a_better_source_at_the_same_place_is_no_origin_change() -> None:
     tr.handle(T0_UNIX + 0.1, _home(0.0, 0.0, 0.0))
     assert tr.vehicles[1].origin.source == "HOME_POSITION"
     assert "origin_changed" not in tr.events
+
+
+def _rocking_flight(servo: bool, n: int = 200):
+    """A vehicle flying north at 1 m/s and rocking (roll and pitch up to 9 and 6 deg), its
+    camera held on a point at (30, 10, 0) m NED: a gimbal that reports horizon-relative
+    angles (``servo=False``) or a servo mount that reports its body angles under the same
+    flags (ArduPilot's MNT1_TYPE 1)."""
+    from mav_observer.frames import euler_from_dcm, euler_to_dcm, quat_from_euler
+
+    target = np.array([30.0, 10.0, 0.0])
+    msgs = []
+    for i in range(n):
+        ms, t = 100_000 + 100 * i, 0.1 * i
+        roll, pitch, yaw = 0.15 * math.sin(1.2 * t), 0.1 * math.sin(0.8 * t + 1.0), 0.3
+        pos = np.array([0.1 * i, 0.0, -10.0])
+        los = (target - pos) / np.linalg.norm(target - pos)
+        el, az = math.asin(-los[2]), math.atan2(los[1], los[0])
+        if servo:
+            r_cam = np.array(euler_to_dcm(0.0, el, az))
+            q = quat_from_euler(*euler_from_dcm(np.array(euler_to_dcm(roll, pitch, yaw)).T @ r_cam))
+        else:
+            q = quat_from_euler(0.0, el, az - yaw)
+        msgs += [
+            message("ATTITUDE", ms, roll, pitch, yaw, 0.0, 0.0, 0.0),
+            lpn(ms, tuple(pos)),
+            gimbal(ms + 5, q=q),
+        ]
+    return msgs, target
+
+
+@pytest.mark.parametrize("servo", [False, True])
+def test_the_gimbals_frame_is_told_from_the_vehicles_tilt(servo: bool) -> None:
+    msgs, target = _rocking_flight(servo)
+    tr = Tracker()
+    recs = feed(tr, msgs)
+    assert tr.gimbal_angles(1) == {1: "body" if servo else "flags"}
+    assert tr.events[f"gimbal_angles_{'body' if servo else 'flags'}"] == 1
+    # read right, the last bearings point at the target
+    last = recs[-1]
+    pos = np.array([0.1 * 199, 0.0, -10.0])
+    los = (target - pos) / np.linalg.norm(target - pos)
+    y = last.estimate.x_m / np.linalg.norm(last.estimate.x_m)
+    assert math.degrees(math.acos(min(1.0, float(y @ los)))) < 3.0
+    told = Tracker(TrackerConfig(gimbal_angles="flags"))
+    feed(told, msgs)
+    assert told.gimbal_angles(1) == {} and "gimbal_angles_body" not in told.events

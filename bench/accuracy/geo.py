@@ -1,7 +1,7 @@
 """The target on the map on the shared SITL log: its published latitude, longitude and altitude
 against the region of interest the simulated autopilot pointed its gimbal at.
 
-``python -m bench.accuracy.geo [--gimbal-angles flags|body ...]``
+``python -m bench.accuracy.geo [--gimbal-angles auto|flags|body ...]``
 
 ``ardupilot_sitl_servo_mount_roi.tlog`` (ArduCopter SITL, a servo mount pointed at a region of
 interest 40 m north and 30 m east of home, on the ground) has the ROI's latitude and longitude
@@ -51,8 +51,11 @@ def map_errors(recs: list[dict[str, Any]], lat_t: Any, lon_t: Any, alt_t: Any) -
     }
 
 
-def score_log(log: Path, meta: dict[str, Any], tracker: TrackerConfig) -> dict[str, Any]:
-    """Replay ``log`` and score its records against the ROI of ``meta``."""
+def score_log(
+    log: Path, meta: dict[str, Any], tracker: TrackerConfig, from_s: float | None = None
+) -> dict[str, Any]:
+    """Replay ``log`` and score its records against the ROI of ``meta``: those of the last
+    third, or with ``from_s`` those from that boot time (s) on."""
     roi = (meta["roi_lat"], meta["roi_lon"], meta["home_alt_amsl_m"] + meta["roi_alt_rel_home_m"])
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "est.jsonl"
@@ -62,7 +65,7 @@ def score_log(log: Path, meta: dict[str, Any], tracker: TrackerConfig) -> dict[s
     if not recs:
         return {"records": 0}
     t = np.array([r["t_boot_s"] for r in recs])
-    last = t >= t[0] + (t[-1] - t[0]) * 2.0 / 3.0
+    last = t >= (t[0] + (t[-1] - t[0]) * 2.0 / 3.0 if from_s is None else from_s)
     sel = [r for r, k in zip(recs, last, strict=True) if k]
     origin = None
     for ts in summary.targets.values():
@@ -82,9 +85,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--gimbal-angles",
         nargs="+",
-        default=["flags", "body"],
-        choices=["flags", "body"],
-        help="TrackerConfig.gimbal_angles to run (default: flags, the default, and body)",
+        default=["auto", "flags", "body"],
+        choices=["auto", "flags", "body"],
+        help="TrackerConfig.gimbal_angles to run (default: auto, the default, flags and body)",
+    )
+    p.add_argument(
+        "--from-s",
+        type=float,
+        default=None,
+        help="score the records from this boot time (s) on instead of the last third "
+        "(55: from when the SITL log's gimbal turns to its ROI)",
     )
     args = p.parse_args(argv)
     log = find_tlogs() / LOG
@@ -95,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
           "| within 2 target_h_std_m | target_h_std_m, median | origin from |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
     for ga in args.gimbal_angles:
-        r = score_log(log, meta, TrackerConfig(gimbal_angles=ga))
+        r = score_log(log, meta, TrackerConfig(gimbal_angles=ga), args.from_s)
         if not r["records"]:
             print(f"| {ga} | 0 | - | - | - | - | - |")
             continue
