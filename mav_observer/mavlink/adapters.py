@@ -145,13 +145,19 @@ def gimbal_camera_attitude(
         return mat_mul(vehicle_dcm, r_q)
     if gimbal_yaw_frame(flags) == "earth":
         return r_q
-    # delta_yaw came with the IN_VEHICLE/IN_EARTH flags; without them (older senders, whose
-    # missing extension fields decode as 0.0) it must be ignored, as the definition says
+    return mat_mul(rot_z(gimbal_vehicle_yaw(flags, delta_yaw, vehicle_yaw)), r_q)
+
+
+def gimbal_vehicle_yaw(flags: int, delta_yaw: float, vehicle_yaw: float | None) -> float:
+    """The vehicle yaw (rad) a gimbal quaternion with its yaw in the vehicle frame is
+    composed with: the message's ``delta_yaw`` when it came with the IN_VEHICLE/IN_EARTH
+    flags (without them, older senders' missing extension field decodes as 0.0 and must be
+    ignored, as the definition says), else ``vehicle_yaw``; :class:`Skip` when neither."""
     new_style = flags & (GIMBAL_YAW_IN_VEHICLE_FRAME | GIMBAL_YAW_IN_EARTH_FRAME)
     yaw = delta_yaw if new_style and math.isfinite(delta_yaw) else vehicle_yaw
     if yaw is None:
         raise Skip("no_attitude", "yaw in the vehicle frame needs the vehicle yaw")
-    return mat_mul(rot_z(yaw), r_q)
+    return yaw
 
 
 def gimbal_boresight(
@@ -173,11 +179,7 @@ def gimbal_boresight(
     bx, by, bz = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)
     if gimbal_yaw_frame(flags) == "earth":
         return (bx, by, bz)
-    new_style = flags & (GIMBAL_YAW_IN_VEHICLE_FRAME | GIMBAL_YAW_IN_EARTH_FRAME)
-    yaw = delta_yaw if new_style and math.isfinite(delta_yaw) else vehicle_yaw
-    if yaw is None:
-        raise Skip("no_attitude", "yaw in the vehicle frame needs the vehicle yaw")
-    return yaw_rotate(yaw, (bx, by, bz))
+    return yaw_rotate(gimbal_vehicle_yaw(flags, delta_yaw, vehicle_yaw), (bx, by, bz))
 
 
 # -- camera tracking ---------------------------------------------------------------

@@ -785,8 +785,12 @@ class Tracker:
         yaw = None if att is None else att[2]
         dev = getattr(msg, "gimbal_device_id", 0)
         angles = self._gimbal_angles(veh, dev)
-        if angles == "auto":
-            angles = self._detect_gimbal_frame(veh, dev, tb, msg, att)
+        if angles != "body":
+            direction = adapters.gimbal_boresight(
+                q, msg.flags, msg.failure_flags, vehicle_yaw=yaw, delta_yaw=delta_yaw
+            )
+            if angles == "auto":
+                angles = self._detect_gimbal_frame(veh, dev, tb, msg, att, direction)
         if angles == "body":
             r_cam = adapters.gimbal_camera_attitude(
                 q,
@@ -798,12 +802,8 @@ class Tracker:
             )
             direction = adapters.boresight(r_cam)
             veh.camera_attitude = (tb, r_cam)
-        else:
-            direction = adapters.gimbal_boresight(
-                q, msg.flags, msg.failure_flags, vehicle_yaw=yaw, delta_yaw=delta_yaw
-            )
-            if "camera" in self.enabled:  # the full attitude is built only if a point needs it
-                veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
+        elif "camera" in self.enabled:  # the full attitude is built only if a point needs it
+            veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
         target = "gimbal" if dev <= 1 else f"gimbal{dev}"
         if "gimbal" in self.enabled:
             self._bearing(veh, target, "GIMBAL_DEVICE_ATTITUDE_STATUS", tb, t, direction, out)
@@ -815,55 +815,43 @@ class Tracker:
         tb: float,
         msg: Any,
         att: tuple[float, float, float] | None,
+        b_flags: Vec3,
     ) -> str:
-        """Feed gimbal ``dev``'s frame detector with this message (``gimbal_angles =
-        "auto"``) and return the reading to use for it: ``"flags"`` until it decides."""
+        """Feed gimbal ``dev``'s frame detector with this message, whose boresight read by
+        its flags is ``b_flags`` (``gimbal_angles = "auto"``), and return the reading to use
+        for it: ``"flags"`` until it decides."""
         det = veh.gimbal_frames.get(dev)
         if det is None:
             det = veh.gimbal_frames[dev] = GimbalFrameDetector()
         if att is None:
             return "flags"
-        try:
-            b_flags = adapters.gimbal_boresight(
-                tuple(msg.q),
-                msg.flags,
-                msg.failure_flags,
-                vehicle_yaw=att[2],
-                delta_yaw=getattr(msg, "delta_yaw", math.nan),
-            )
-        except Skip:
-            return "flags"  # the stage itself skips it with its reason
         r_nb = euler_to_dcm(*att)
         if adapters.gimbal_yaw_frame(msg.flags) == "earth":
             t_fb = r_nb
-        else:
-            new_style = msg.flags & (
-                adapters.GIMBAL_YAW_IN_VEHICLE_FRAME | adapters.GIMBAL_YAW_IN_EARTH_FRAME
-            )
+        else:  # R_nb Rz(yaw)^T
             dy = getattr(msg, "delta_yaw", math.nan)
-            yaw = dy if new_style and math.isfinite(dy) else att[2]
+            yaw = adapters.gimbal_vehicle_yaw(msg.flags, dy, att[2])
             c, s = math.cos(yaw), math.sin(yaw)
-            # R_nb Rz(yaw)^T
             t_fb = tuple((row[0] * c - row[1] * s, row[0] * s + row[1] * c, row[2]) for row in r_nb)
         decided = det.add(tb, b_flags, t_fb)
-        if decided is not None:
-            ev = det.evidence()
-            self._note(veh, f"gimbal_angles_{decided}")
-            if decided == "body":  # its estimate so far read the angles wrongly
-                veh.targets.restart("gimbal" if dev <= 1 else f"gimbal{dev}")
-            log.log(
-                logging.WARNING if decided == "body" else logging.INFO,
-                "vehicle %d: gimbal %d's roll and pitch read as %s from %.1f s (the boresight "
-                "follows the vehicle's tilt %.2f +- %.2f of the way read by its flags)",
-                veh.sysid,
-                dev,
-                "body-relative (a servo mount)" if decided == "body" else "its flags say",
-                tb,
-                ev.beta,
-                ev.beta_se,
-            )
-            return decided
-        return "flags"
+        if decided is None:
+            return "flags"
+        ev = det.evidence()
+        self._note(veh, f"gimbal_angles_{decided}")
+        if decided == "body":  # its estimate so far read the angles wrongly
+            veh.targets.restart("gimbal" if dev <= 1 else f"gimbal{dev}")
+        log.log(
+            logging.WARNING if decided == "body" else logging.INFO,
+            "vehicle %d: gimbal %d's roll and pitch read as %s from %.1f s (the boresight "
+            "follows the vehicle's tilt %.2f +- %.2f of the way read by its flags)",
+            veh.sysid,
+            dev,
+            "body-relative (a servo mount)" if decided == "body" else "its flags say",
+            tb,
+            ev.beta,
+            ev.beta_se,
+        )
+        return decided
 
     def _on_mount_orientation(
         self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]
