@@ -194,6 +194,11 @@ class SampleLog:
         tr.t_s.append(t_s)
         tr.values.append(list(y))
 
+    def forget_bearings(self, sysid: int, target: str) -> None:
+        """Drop ``target``'s bearings of the vehicle's current epoch (they were read
+        wrongly: the tracker found its gimbal's angles to be body-relative)."""
+        self._bearings.pop((sysid, target, self._epoch.get(sysid, 0)), None)
+
     def tracks(self) -> list[tuple[int, str, int]]:
         """``(sysid, target, epoch)`` of every bearing track, in order."""
         return sorted(self._bearings)

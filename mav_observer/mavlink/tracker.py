@@ -838,8 +838,11 @@ class Tracker:
             return "flags"
         ev = det.evidence()
         self._note(veh, f"gimbal_angles_{decided}")
-        if decided == "body":  # its estimate so far read the angles wrongly
-            veh.targets.restart("gimbal" if dev <= 1 else f"gimbal{dev}")
+        if decided == "body":  # its estimate and bearings so far read the angles wrongly
+            target = "gimbal" if dev <= 1 else f"gimbal{dev}"
+            veh.targets.restart(target)
+            if self.sample_log is not None:
+                self.sample_log.forget_bearings(veh.sysid, target)
         log.log(
             logging.WARNING if decided == "body" else logging.INFO,
             "vehicle %d: gimbal %d's roll and pitch read as %s from %.1f s (the boresight "
