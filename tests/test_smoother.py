@@ -81,3 +81,20 @@ def test_the_sample_log_splits_where_the_clock_restarts() -> None:
     assert first is not None and len(first[0]) == 5 and len(first[2]) == 5
     second = log.data(1, "gimbal", 1)
     assert second is not None and second[1].tolist() == [[0.0, 1.0, 0.0]]
+
+
+def test_forgotten_bearings_leave_the_other_targets_and_later_epochs() -> None:
+    log = SampleLog()
+    for k in range(3):
+        log.local_position(1, float(k), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        log.bearing(1, "gimbal", float(k), [1.0, 0.0, 0.0])
+        log.bearing(1, "camera", float(k), [0.0, 1.0, 0.0])
+    log.forget_bearings(1, "gimbal")
+    assert log.tracks() == [(1, "camera", 0)]
+    log.bearing(1, "gimbal", 3.0, [1.0, 0.0, 0.0])  # read right from now on
+    data = log.data(1, "gimbal", 0)
+    assert data is not None and data[0].tolist() == [3.0]
+    log.new_epoch(1)
+    log.bearing(1, "gimbal", 0.5, [1.0, 0.0, 0.0])
+    log.forget_bearings(1, "gimbal")  # the current epoch's only
+    assert log.tracks() == [(1, "camera", 0), (1, "gimbal", 0)]
