@@ -59,6 +59,7 @@ STATUS_KEYS = (
     "link_skipped",
     "bearing_sources",
     "origin",
+    "gimbal_angles",
     "observers",
     "events",
 )

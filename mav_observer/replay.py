@@ -175,6 +175,9 @@ class ReplaySummary:
     )
     #: ``keep_map``: what the GeoJSON and KML exports need (:mod:`mav_observer.mapexport`)
     map_tracks: MapTracks | None = None
+    #: with ``gimbal_angles = "auto"``: how each gimbal's angles were read in the end, by
+    #: ``sysid/device id`` (``"flags"``, ``"body"``, or ``"auto"``: undecided, the flags)
+    gimbal_angles: dict[str, str] = field(default_factory=dict)
 
     @property
     def messages_per_s(self) -> float:
@@ -190,6 +193,7 @@ class ReplaySummary:
             "skipped": self.skipped,
             "damage": self.damage,
             "events": self.events,
+            "gimbal_angles": self.gimbal_angles,
             "first_t_unix_s": self.first_t_unix_s,
             "last_t_unix_s": self.last_t_unix_s,
             "estimates_written": self.estimates_written,
@@ -237,6 +241,15 @@ class ReplaySummary:
             lines.append("damage: " + ", ".join(f"{k} {v}" for k, v in self.damage.items()))
         if self.events:
             lines.append("events: " + ", ".join(f"{k} {v}" for k, v in self.events.items()))
+        for key, reading in self.gimbal_angles.items():
+            sysid, dev = key.split("/")
+            lines.append(
+                f"gimbal angles: vehicle {sysid} gimbal {dev} read "
+                + {
+                    "body": "as body-relative (found from the vehicle's tilt: a servo mount)",
+                    "flags": "as its flags say (confirmed by the vehicle's tilt)",
+                }.get(reading, "as its flags say (the vehicle did not tilt enough to tell)")
+            )
         if self.first_t_unix_s is not None and self.last_t_unix_s is not None:
             a = datetime.fromtimestamp(self.first_t_unix_s, UTC).isoformat(timespec="seconds")
             b = datetime.fromtimestamp(self.last_t_unix_s, UTC).isoformat(timespec="seconds")
@@ -439,6 +452,11 @@ def replay(
     for ts in summary.targets.values():
         obs = tracker.observer(ts.sysid, ts.target)
         ts.noise = None if obs is None else obs.noise()
+    summary.gimbal_angles = {
+        f"{sysid}/{dev}": reading
+        for sysid in sorted(tracker.vehicles)
+        for dev, reading in tracker.gimbal_angles(sysid).items()
+    }
     if isinstance(reader, TlogReader):
         st = reader.stats
         summary.messages_read = st.records

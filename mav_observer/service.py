@@ -361,6 +361,9 @@ class Service:
             },
             "bearing_sources": sorted({t.source for t in view.targets.values()}),
             "origin": self.tracker.origin(view.sysid),
+            "gimbal_angles": {
+                str(dev): reading for dev, reading in self.tracker.gimbal_angles(view.sysid).items()
+            },
             "observers": observers,
             "events": dict(sorted(self.tracker.events.items())),
         }

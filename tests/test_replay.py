@@ -95,6 +95,8 @@ def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(
     with caplog.at_level("WARNING", logger="mav_observer.mavlink.tracker"):
         s = rp.replay(str(log), smooth=True)
     assert s.events["gimbal_angles_body"] == 1
+    assert s.gimbal_angles == {"1/1": "body"}
+    assert "vehicle 1 gimbal 1 read as body-relative" in s.text()
     smoothed = s.smoothed_final["1/gimbal"][1]
     assert float(np.linalg.norm(np.array(smoothed) - roi)) < 2.0
     assert "gimbal_angles_flags" not in s.events

@@ -140,6 +140,8 @@ def test_status_document_reports_rates_sources_and_observers() -> None:
     assert doc["rates_hz"]["ATTITUDE"] == pytest.approx(20.0, rel=0.15)
     assert doc["rates_hz"]["GIMBAL_DEVICE_ATTITUDE_STATUS"] == pytest.approx(10.0, rel=0.15)
     assert doc["bearing_sources"] == ["GIMBAL_DEVICE_ATTITUDE_STATUS"]
+    # the emitter's vehicle flies level: its gimbal's reading stays the flags', undecided
+    assert doc["gimbal_angles"] == {"1": "auto"}
     obs = doc["observers"]["gimbal"]
     assert obs["status"] in ("converging", "converged")
     assert obs["range_m"] > 0 and 0.0 <= obs["pe"] <= 1.0
