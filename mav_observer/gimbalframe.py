@@ -70,14 +70,17 @@ class GimbalFrameDetector:
 
     __slots__ = ("_n", "_prev", "_sdd", "_sgd", "_sgg", "decided")
 
-    def __init__(self) -> None:
+    def __init__(self, decided: str | None = None) -> None:
+        """``decided``: a reading already known (a saved decision), else ``None``."""
+        if decided not in (None, "flags", "body"):
+            raise ValueError(f"decided must be None, 'flags' or 'body', got {decided!r}")
         self._prev: tuple[float, Vec3, Vec3] | None = None
         self._sgg = 0.0
         self._sgd = 0.0
         self._sdd = 0.0
         self._n = 0
         #: ``None`` while undecided, then ``"flags"`` or ``"body"``
-        self.decided: str | None = None
+        self.decided: str | None = decided
 
     def add(self, t_s: float, b_flags: Vec3, t_flags_body: Mat3) -> str | None:
         """One message at ``t_s`` (s): its boresight in NED read as the flags say

@@ -183,6 +183,9 @@ def check_saved(entries: Sequence[Any]) -> dict[int, list[dict[str, Any]]]:
             raise StateError(f"{where}.target must be a non-empty string, got {target!r}")
         if not isinstance(source, str):
             raise StateError(f"{where}.source must be a string, got {source!r}")
+        angles = e.get("gimbal_angles")
+        if angles is not None and angles not in ("flags", "body"):
+            raise StateError(f"{where}.gimbal_angles must be 'flags' or 'body', got {angles!r}")
         veh = e.get("vehicle")
         try:
             tp = float(veh["t_boot_s"])  # type: ignore[index]

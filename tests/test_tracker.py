@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from mavmsg import T0_UNIX, landing_target_fields, message
 
-from mav_observer.errors import ConfigError
+from mav_observer.errors import ConfigError, StateError
 from mav_observer.mavlink.dialect import codec
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
 from mav_observer.observer import ObserverConfig
@@ -736,3 +736,20 @@ def test_the_gimbals_frame_is_told_from_the_vehicles_tilt(servo: bool) -> None:
     told = Tracker(TrackerConfig(gimbal_angles="flags"))
     feed(told, msgs)
     assert told.gimbal_angles(1) == {} and "gimbal_angles_body" not in told.events
+
+
+def test_a_gimbal_reading_found_from_the_data_survives_a_restart() -> None:
+    msgs, _ = _rocking_flight(servo=True)
+    tr = Tracker()
+    feed(tr, msgs)
+    saved = tr.export_state()
+    assert [e.get("gimbal_angles") for e in saved if e["target"] == "gimbal"] == ["body"]
+    tr2 = Tracker()
+    tr2.restore(saved)
+    level = flight(n=20, boot0=120_000)  # no tilt: nothing to decide from
+    feed(tr2, level, boot0_ms=120_000)
+    assert tr2.gimbal_angles(1) == {1: "body"}  # read so from its first message
+    assert "gimbal_angles_body" not in tr2.events
+    bad = [dict(saved[0], gimbal_angles="sideways")]
+    with pytest.raises(StateError, match=r"observers\[0\]\.gimbal_angles"):
+        Tracker().restore(bad)

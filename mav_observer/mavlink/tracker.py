@@ -251,6 +251,16 @@ class _Vehicle:
     gimbal_frames: dict[int, GimbalFrameDetector] = field(default_factory=dict)
 
 
+def _gimbal_device(target: str) -> int | None:
+    """The gimbal device id of a target named after it (``gimbal``: 1, ``gimbalN``: N), or
+    ``None`` for another target."""
+    if target == "gimbal":
+        return 1
+    if target.startswith("gimbal") and target[6:].isdigit():
+        return int(target[6:])
+    return None
+
+
 class _Deferred(Exception):
     """Raised by a handler whose message waits for the attitude of its time."""
 
@@ -268,6 +278,8 @@ class Tracker:
             self.config.landing_target_orientation, self.config.landing_target_yaw_align_deg
         )
         self.vehicles: dict[int, _Vehicle] = {}
+        #: gimbal readings decided from the data before a restart, by (sysid, device id)
+        self._saved_angles: dict[tuple[int, int], str] = {}
         self.received: Counter[str] = Counter()
         self.used: Counter[str] = Counter()
         self.skipped: Counter[str] = Counter()
@@ -754,7 +766,8 @@ class Tracker:
     # -- bearings ---------------------------------------------------------------------
     def _on_gimbal(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         tb = self._timed(veh, msg.get_srcComponent(), msg.time_boot_ms * 1e-3, t)
-        angles = self._gimbal_angles(veh, getattr(msg, "gimbal_device_id", 0))
+        # device 0 (a gimbal that gives no id) is target "gimbal", as device 1
+        angles = self._gimbal_angles(veh, max(getattr(msg, "gimbal_device_id", 0), 1))
         needs = angles != "flags" or adapters.gimbal_needs_vehicle_yaw(
             msg.flags, getattr(msg, "delta_yaw", math.nan)
         )
@@ -766,7 +779,12 @@ class Tracker:
         if self.config.gimbal_angles != "auto":
             return self.config.gimbal_angles
         det = veh.gimbal_frames.get(device)
-        return "auto" if det is None or det.decided is None else det.decided
+        if det is None:
+            saved = self._saved_angles.get((veh.sysid, device))
+            if saved is None:
+                return "auto"
+            det = veh.gimbal_frames[device] = GimbalFrameDetector(saved)  # a restart's
+        return "auto" if det.decided is None else det.decided
 
     def gimbal_angles(self, sysid: int) -> dict[int, str]:
         """How vehicle ``sysid``'s gimbals' angles are read, by gimbal device id: ``"flags"``
@@ -783,7 +801,7 @@ class Tracker:
         q = tuple(msg.q)
         delta_yaw = getattr(msg, "delta_yaw", math.nan)
         yaw = None if att is None else att[2]
-        dev = getattr(msg, "gimbal_device_id", 0)
+        dev = max(getattr(msg, "gimbal_device_id", 0), 1)  # 0 (no id): target "gimbal"
         angles = self._gimbal_angles(veh, dev)
         if angles != "body":
             direction = adapters.gimbal_boresight(
@@ -804,7 +822,7 @@ class Tracker:
             veh.camera_attitude = (tb, r_cam)
         elif "camera" in self.enabled:  # the full attitude is built only if a point needs it
             veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
-        target = "gimbal" if dev <= 1 else f"gimbal{dev}"
+        target = "gimbal" if dev == 1 else f"gimbal{dev}"
         if "gimbal" in self.enabled:
             self._bearing(veh, target, "GIMBAL_DEVICE_ATTITUDE_STATUS", tb, t, direction, out)
 
@@ -839,7 +857,7 @@ class Tracker:
         ev = det.evidence()
         self._note(veh, f"gimbal_angles_{decided}")
         if decided == "body":  # its estimate and bearings so far read the angles wrongly
-            target = "gimbal" if dev <= 1 else f"gimbal{dev}"
+            target = "gimbal" if dev == 1 else f"gimbal{dev}"
             veh.targets.restart(target)
             if self.sample_log is not None:
                 self.sample_log.forget_bearings(veh.sysid, target)
@@ -1085,7 +1103,12 @@ class Tracker:
         out: list[dict[str, Any]] = []
         for sysid, veh in self.vehicles.items():
             if veh.position is not None:
-                out.extend(veh.targets.export(sysid, VehicleFix(*veh.position)))
+                for e in veh.targets.export(sysid, VehicleFix(*veh.position)):
+                    dev = _gimbal_device(e["target"])
+                    det = None if dev is None else veh.gimbal_frames.get(dev)
+                    if det is not None and det.decided is not None:
+                        e["gimbal_angles"] = det.decided  # what the data showed, kept too
+                    out.append(e)
         # observers restored but whose vehicle has not come back yet are kept as they were
         for entries in self._pending.values():
             out.extend(entries)
@@ -1102,6 +1125,10 @@ class Tracker:
         the bad entry (:func:`check_saved`); nothing is taken then."""
         for sysid, es in check_saved(entries).items():
             self._pending.setdefault(sysid, []).extend(es)
+            for e in es:
+                dev = _gimbal_device(e["target"])
+                if dev is not None and e.get("gimbal_angles") is not None:
+                    self._saved_angles[(sysid, dev)] = e["gimbal_angles"]
 
     def _resume_saved(self, veh: _Vehicle, entries: list[dict[str, Any]]) -> None:
         """Carry saved observers to the vehicle's current position (see :meth:`restore`)."""
