@@ -87,9 +87,9 @@ def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(
 ) -> None:
     """The servo mount flags its roll and pitch as horizon-relative but sends body angles:
     with the default ``gimbal_angles = "auto"`` the tracker finds out once the vehicle
-    manoeuvres (72 s into the log), says so, and reads them as body angles, the bearings read
-    before left out of ``--smooth`` (1.6 m from the ROI; 2.2 m with them); told ``flags`` it
-    does not."""
+    manoeuvres (54 s into the log, 2 s into the first manoeuvre), says so, and reads them as
+    body angles, the bearings read before left out of ``--smooth`` (1.3 m from the ROI);
+    told ``flags`` it does not."""
     log = TLOGS / "ardupilot_sitl_servo_mount_roi.tlog"
     roi = np.array([40.0, 30.0, 0.01])
     with caplog.at_level("WARNING", logger="mav_observer.mavlink.tracker"):
@@ -101,7 +101,7 @@ def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(
     assert float(np.linalg.norm(np.array(smoothed) - roi)) < 2.0
     assert "gimbal_angles_flags" not in s.events
     said = [r.getMessage() for r in caplog.records if "body-relative" in r.getMessage()]
-    assert len(said) == 1 and "from 72.0 s" in said[0], said
+    assert len(said) == 1 and "from 54.3 s" in said[0], said
     told = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="flags"))
     assert "gimbal_angles_body" not in told.events
 
