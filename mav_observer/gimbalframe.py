@@ -118,12 +118,13 @@ class GimbalFrameDetector:
         self._sgd += g[0] * d[0] + g[1] * d[1] + g[2] * d[2]
         self._sdd += dd
         self._n += 1
+        if self._sgg < MIN_TILT_EVIDENCE_RAD2 or self._n < MIN_PAIRS:
+            return None  # (a level vehicle stays here: nothing to tell the readings apart)
         ev = self.evidence()
-        if ev.tilt_rad2 >= MIN_TILT_EVIDENCE_RAD2 and ev.pairs >= MIN_PAIRS:
-            if ev.beta - DECISION_SIGMAS * ev.beta_se > 0.5:
-                self.decided = "body"
-            elif ev.beta + DECISION_SIGMAS * ev.beta_se < 0.5:
-                self.decided = "flags"
+        if ev.beta - DECISION_SIGMAS * ev.beta_se > 0.5:
+            self.decided = "body"
+        elif ev.beta + DECISION_SIGMAS * ev.beta_se < 0.5:
+            self.decided = "flags"
         return self.decided
 
     def evidence(self) -> FrameEvidence:
