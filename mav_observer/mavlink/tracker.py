@@ -251,9 +251,15 @@ class _Vehicle:
     gimbal_frames: dict[int, GimbalFrameDetector] = field(default_factory=dict)
 
 
+def _gimbal_target(device: int) -> str:
+    """The target a gimbal device's bearings go to: ``gimbal`` for device 1 (or 0, no id),
+    ``gimbalN`` for device N (a second gimbal keeps its own estimate)."""
+    return "gimbal" if device <= 1 else f"gimbal{device}"
+
+
 def _gimbal_device(target: str) -> int | None:
-    """The gimbal device id of a target named after it (``gimbal``: 1, ``gimbalN``: N), or
-    ``None`` for another target."""
+    """The gimbal device id of a target named after it (:func:`_gimbal_target`'s inverse),
+    or ``None`` for another target."""
     if target == "gimbal":
         return 1
     if target.startswith("gimbal") and target[6:].isdigit():
@@ -822,7 +828,7 @@ class Tracker:
             veh.camera_attitude = (tb, r_cam)
         elif "camera" in self.enabled:  # the full attitude is built only if a point needs it
             veh.camera_attitude = (tb, (q, msg.flags, yaw, delta_yaw))
-        target = "gimbal" if dev == 1 else f"gimbal{dev}"
+        target = _gimbal_target(dev)
         if "gimbal" in self.enabled:
             self._bearing(veh, target, "GIMBAL_DEVICE_ATTITUDE_STATUS", tb, t, direction, out)
 
@@ -857,7 +863,7 @@ class Tracker:
         ev = det.evidence()
         self._note(veh, f"gimbal_angles_{decided}")
         if decided == "body":  # its estimate and bearings so far read the angles wrongly
-            target = "gimbal" if dev == 1 else f"gimbal{dev}"
+            target = _gimbal_target(dev)
             veh.targets.restart(target)
             if self.sample_log is not None:
                 self.sample_log.forget_bearings(veh.sysid, target)
