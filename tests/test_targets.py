@@ -96,3 +96,16 @@ def test_check_saved_names_the_bad_field(mutate, match: str) -> None:
         check_saved(saved)
     with pytest.raises(StateError, match=r"observers\[1\] must be a table"):
         check_saved([tg.export(1, fix)[0], "nonsense"])
+
+
+def test_a_restarted_target_starts_afresh_on_its_next_bearing() -> None:
+    tg, fix = _flown(30.0)
+    before = tg.get("gimbal")
+    assert before is not None and before.started
+    assert tg.restart("gimbal") and "gimbal" not in tg
+    assert not tg.restart("gimbal")  # nothing left to forget
+    est, new = tg.bearing("gimbal", "GIMBAL_DEVICE_ATTITUDE_STATUS", fix.t_boot_s + 0.1,
+                          [1.0, 0.0, 0.0], (fix.t_boot_s, [0.0, -2.0, 0.0]))  # fmt: skip
+    after = tg.get("gimbal")
+    assert new and after is not before and after is not None and after.counts["bearing"] == 1
+    assert est is not None  # started from the latest velocity given
