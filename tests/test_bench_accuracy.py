@@ -279,3 +279,10 @@ def test_generated_blocks_survive_the_pages_regeneration(tmp_path: Path) -> None
     # rewriting a block leaves the page as it was: no blank lines pile up
     blocks.put_block(page, "real-logs", "## Real\n\nrows 3")
     assert page.read_text() == text and "\n\n\n" not in text
+
+
+def test_a_markdown_table_has_its_header_separator_and_rows() -> None:
+    from bench.accuracy.report import markdown_table
+
+    got = markdown_table(("a", "b c"), ["| 1 | 2 |", "| 3 | 4 |"])
+    assert got.splitlines() == ["| a | b c |", "|---|---|", "| 1 | 2 |", "| 3 | 4 |"]

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from bench.accuracy import reallogs
+from bench.accuracy.report import markdown_table
 from mav_observer.batch import fit_batch
 from sim import inject as inj
 
@@ -126,11 +127,7 @@ def run_log(
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    out = [
-        "| log | LPN rate | range (last third) | product | batch (whole log) "
-        "| causal, interpolated | causal, extrapolated | product / causal extrapolated |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
+    out = []
     for r in rows:
         p, ce = r["product_rel_rms"], r["causal_extrapolated_rel_rms"]
         out.append(
@@ -140,7 +137,17 @@ def table(rows: list[dict[str, Any]]) -> str:
             f"| {100 * r['causal_interpolated_rel_rms']:.2f} % | {100 * ce:.2f} % "
             f"| {p / ce:.2f}x |"
         )
-    return "\n".join(out)
+    columns = (
+        "log",
+        "LPN rate",
+        "range (last third)",
+        "product",
+        "batch (whole log)",
+        "causal, interpolated",
+        "causal, extrapolated",
+        "product / causal extrapolated",
+    )
+    return markdown_table(columns, out)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -45,6 +45,7 @@ import numpy as np
 import pymap3d
 
 from bench.accuracy import blocks, core, geo
+from bench.accuracy.report import markdown_table
 from mav_observer import settings as st
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
@@ -598,41 +599,50 @@ def run_cases(
 
 
 def table(results: dict[str, dict[str, Any]]) -> str:
-    lines = [
-        "| case | position RMS, last third | CRLB | ratio (worst seed) | NEES per axis "
-        "| range bias | bias RMS | t10 median / max | converged |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
+    rows = []
     for name, res in results.items():
         p = res["pooled"]
-        lines.append(
+        rows.append(
             f"| {name} | {1000 * p['rms_m']:.1f} mm | {1000 * p['crlb_m']:.1f} mm "
             f"| {p['ratio']:.2f}x ({p['worst_ratio']:.2f}x) | {p['nees_axis']:.2f} "
             f"| {p['range_bias_pct']:+.2f} % | {p['bias_rms_mps']:.3f} m/s "
             f"| {p['t10_med_s']:.1f} / {p['t10_max_s']:.1f} s "
             f"| {100 * p['converged_share']:.0f} % |"
         )
-    return "\n".join(lines)
+    columns = (
+        "case",
+        "position RMS, last third",
+        "CRLB",
+        "ratio (worst seed)",
+        "NEES per axis",
+        "range bias",
+        "bias RMS",
+        "t10 median / max",
+        "converged",
+    )
+    return markdown_table(columns, rows)
 
 
 def geo_table(results: dict[str, dict[str, Any]]) -> str:
     """The target on the map (``target_lat_deg``, ``target_lon_deg``, ``target_alt_m``)
     against the truth's over the last third: median errors (median over runs, and the worst
     run's horizontal median) and the share of estimates within twice ``target_h_std_m``."""
-    lines = [
-        "| case | horizontal error, median (worst run) | vertical error, median "
-        "| within 2 target_h_std_m |",
-        "|---|---|---|---|",
-    ]
+    rows = []
     for name, res in results.items():
         p = res["pooled"]
         if "geo_h_med_m" not in p:
             continue
-        lines.append(
+        rows.append(
             f"| {name} | {100 * p['geo_h_med_m']:.1f} cm ({100 * p['geo_h_med_worst_m']:.1f} cm) "
             f"| {100 * p['geo_v_med_m']:.1f} cm | {100 * p['geo_h_within_2sd']:.0f} % |"
         )
-    return "\n".join(lines)
+    columns = (
+        "case",
+        "horizontal error, median (worst run)",
+        "vertical error, median",
+        "within 2 target_h_std_m",
+    )
+    return markdown_table(columns, rows)
 
 
 def markdown(

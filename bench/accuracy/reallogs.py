@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from bench.accuracy import blocks
+from bench.accuracy.report import markdown_table
 from mav_observer.batch import displacement_at, fit_batch
 from mav_observer.mavlink.tracker import TrackerConfig
 from mav_observer.observer import ObserverConfig
@@ -195,11 +196,7 @@ def run_log(
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    lines = [
-        "| log | LPN rate | range (last third) | product: position RMS / range | "
-        "batch least squares | product / batch | worst, last third |",
-        "|---|---|---|---|---|---|---|",
-    ]
+    lines = []
     for r in rows:
         lines.append(
             f"| {r['log']} (seed {r['seed']}) | {r['lpn_hz']:.1f} Hz "
@@ -207,7 +204,16 @@ def table(rows: list[dict[str, Any]]) -> str:
             f"| {100 * r['batch_rel_rms']:.2f} % | {r['ratio']:.2f}x "
             f"| {100 * r['product_rel_max']:.1f} % |"
         )
-    return "\n".join(lines)
+    columns = (
+        "log",
+        "LPN rate",
+        "range (last third)",
+        "product: position RMS / range",
+        "batch least squares",
+        "product / batch",
+        "worst, last third",
+    )
+    return markdown_table(columns, lines)
 
 
 def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

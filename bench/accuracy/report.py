@@ -35,6 +35,14 @@ COLOURS = {
 }
 
 
+def markdown_table(columns: Iterable[str], rows: Iterable[str]) -> str:
+    """A markdown table: a header of ``columns``, its separator, and ``rows`` (each already
+    formatted as ``| a | b | ... |``)."""
+    cols = list(columns)
+    head = "| " + " | ".join(cols) + " |"
+    return "\n".join([head, "|" + "---|" * len(cols), *rows])
+
+
 def _name(r: Result) -> str:
     return r.task.estimator + (
         " (service)" if r.task.per_sample and r.task.estimator == "riccati" else ""
