@@ -85,6 +85,12 @@ def build_parser() -> argparse.ArgumentParser:
         "post-flight answer, in the summary and, given FILE, one record per bearing (JSON "
         "Lines, docs/schema.md)",
     )
+    rp.add_argument(
+        "--live",
+        action="store_true",
+        help="publish what the service would have, each bearing's estimate at its arrival "
+        "(the default: once the velocity after it is known, interpolated; docs/cli.md)",
+    )
     rp.add_argument("--summary-json", type=Path, help="write the summary as JSON")
     rp.add_argument(
         "--config",
@@ -446,6 +452,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         smooth=args.smooth is not None,
         smooth_jsonl=args.smooth if isinstance(args.smooth, Path) else None,
         keep_map=bool(args.geojson or args.kml or args.plot),
+        live=args.live,
     )
     map_status = _write_maps(args, summary, Path(source).name)
     errors = None

@@ -135,9 +135,14 @@ class BiasObserver:
     :class:`Estimate`. A rejected sample raises :class:`InvalidSampleError` and leaves the
     observer exactly as it was."""
 
-    def __init__(self, config: ObserverConfig | None = None) -> None:
+    def __init__(self, config: ObserverConfig | None = None, *, committed: bool = False) -> None:
+        """``committed``: besides the live estimates, keep the estimate at each bearing's time
+        once the state is committed through it (the velocity around it known: at most one
+        velocity interval later), read with :meth:`take_committed`; bearings are then given
+        with :meth:`add_bearing_values` (``replay``'s default, ``docs/cli.md``)."""
         self.config = config if config is not None else ObserverConfig()
         self._thresholds = self.config.thresholds()
+        self._keep_committed = committed
         self.reset()
 
     def reset(self) -> None:
@@ -157,6 +162,8 @@ class BiasObserver:
         self._diag: tuple[float, float] | None = None  # t_s, excitation
         self._cond: tuple[float | None, float] | None = None  # committed t_s, cond
         self._counts = {"velocity": 0, "bearing": 0}
+        #: the committed estimates at bearing times not yet taken (``committed=True``)
+        self._committed: list[Estimate] = []
 
     # -- public properties ----------------------------------------------------------
     @property
@@ -311,6 +318,32 @@ class BiasObserver:
         self._accept("bearing", t_s, y)
         return self._estimate_at(t_s)
 
+    def add_bearing_values(self, t_s: float, y: list[float]) -> None:
+        """Accept a checked bearing (as :meth:`update_bearing_values`) without a live
+        estimate at its time: with ``committed=True`` its estimate comes, with those of the
+        other bearings, from :meth:`take_committed` once the velocity around it is known."""
+        self._accept("bearing", t_s, y)
+
+    def take_committed(self) -> list[Estimate]:
+        """The estimates at the bearing times the state has been committed through since the
+        previous call, in time order (``committed=True``; else always empty). Each is the
+        filtered estimate at its bearing, that bearing applied, with the velocity
+        interpolated around it: nothing after the next velocity sample is used."""
+        out, self._committed = self._committed, []
+        return out
+
+    def commit_pending(self) -> list[Estimate]:
+        """At the end of the data: commit through the latest bearing even though no velocity
+        follows it (the latest velocity held, as a live estimate would have it) and return
+        :meth:`take_committed`."""
+        streams = self._streams
+        if self._t_c is not None and streams.bearings:
+            t_end = streams.bearings[-1][0]
+            if t_end > self._t_c:
+                self._commit_to(t_end)
+                streams.trim(t_end)
+        return self.take_committed()
+
     def predict(self, t_s: float) -> Estimate:
         """Estimate at ``t_s`` from the data so far.
 
@@ -343,6 +376,8 @@ class BiasObserver:
         t_b, y = streams.bearings[-1]
         self._est.start(t_b, y, streams)
         self._t_c = streams.start_time()
+        if self._keep_committed and self._t_c == t_b:  # started at this bearing: its estimate
+            self._committed.append(self._estimate_at(t_b, committed=True))
         streams.trim(self._t_c)
 
     def _advance(self, *, lazy: bool = False) -> None:
@@ -357,26 +392,54 @@ class BiasObserver:
             return
         horizon = streams.horizon()
         if horizon > self._t_c:
-            est, intervals, corrections = self._step(self._t_c, horizon)
+            self._commit_to(horizon)
+            streams.trim(horizon)
+
+    def _commit_to(self, horizon: float) -> None:
+        """Step the committed state to ``horizon`` and commit it (with ``committed=True``,
+        bearing by bearing, keeping the estimate at each). Computes every piece before
+        committing any: if the maths raised, nothing would have changed."""
+        if not self._keep_committed:
+            t0 = self._t_c
+            est, intervals, corrections = self._step(self._est, t0, horizon)  # type: ignore[arg-type]
             self._est = est
             self._t_c = horizon
             self._window.add_interval(*intervals)
             if corrections is not None:
                 self._window.add_correction(*corrections)
-            streams.trim(horizon)
+            return
+        t0: float = self._t_c  # type: ignore[assignment]
+        stops = [t for t, _ in self._streams.bearings if t0 < t <= horizon]
+        if not stops or stops[-1] < horizon:
+            stops.append(horizon)
+        pieces = []
+        est = self._est
+        for t1 in stops:
+            est, intervals, corrections = self._step(est, t0, t1)
+            pieces.append((t1, est, intervals, corrections))
+            t0 = t1
+        bearing_times = {t for t, _ in self._streams.bearings}
+        for t1, est, intervals, corrections in pieces:
+            self._est = est
+            self._t_c = t1
+            self._window.add_interval(*intervals)
+            if corrections is not None:
+                self._window.add_correction(*corrections)
+            if t1 in bearing_times:
+                self._committed.append(self._estimate_at(t1, committed=True))
 
     def _step(
-        self, t0: float, t1: float
+        self, start: Estimator, t0: float, t1: float
     ) -> tuple[Estimator, tuple[Any, ...], tuple[Any, ...] | None]:
-        """Step a copy of the estimator from ``t0`` to ``t1``: sub-steps of prediction with
-        the inputs at their midpoints between the breakpoints, an update at each bearing
-        sample in ``(t0, t1]``. Returns it with what the monitor's window must account over
-        ``[t0, t1]``: the integral of ``y y^T`` over the time with a usable bearing and that
-        time, and the correction applied (``None`` if none)."""
+        """Step a copy of the estimator ``start`` from ``t0`` to ``t1``: sub-steps of
+        prediction with the inputs at their midpoints between the breakpoints, an update at
+        each bearing sample in ``(t0, t1]``. Returns it with what the monitor's window must
+        account over ``[t0, t1]``: the integral of ``y y^T`` over the time with a usable
+        bearing and that time, and the correction applied (``None`` if none)."""
         n = self.config.n
         streams = self._streams
-        before = self._est.output(streams)
-        est = self._est.copy()
+        before = start.output(streams)
+        est = start.copy()
         bearings = streams.bearings_between(t0, t1)
         openloop = [0.0] * n
         yy = [0.0] * (n * n)
@@ -421,7 +484,10 @@ class BiasObserver:
         return est, intervals, corrections
 
     # -- output ---------------------------------------------------------------------
-    def _estimate_at(self, t: float) -> Estimate:
+    def _estimate_at(self, t: float, *, committed: bool = False) -> Estimate:
+        """The estimate at ``t`` (at or after the committed time); ``committed``: at the
+        committed time, the bearing there just applied (its age 0, the velocity's the time
+        since the latest velocity sample at or before it)."""
         cfg = self.config
         n = cfg.n
         streams = self._streams
@@ -456,8 +522,13 @@ class BiasObserver:
                     )
                     xhat = x_new.tolist()
         rng = math.sqrt(discrete.dot(xhat, xhat))
-        b_age = t - streams.bearings[-1][0] if streams.bearings else None
-        v_age = t - streams.velocities[-1][0] if streams.velocities else None
+        if committed:
+            b_age = 0.0
+            tv = max((tv for tv, _ in streams.velocities if tv <= t), default=None)
+            v_age = None if tv is None else t - tv
+        else:
+            b_age = t - streams.bearings[-1][0] if streams.bearings else None
+            v_age = t - streams.velocities[-1][0] if streams.velocities else None
         if self._diag is None or not 0.0 <= t - self._diag[0] < DIAGNOSTICS_PERIOD_S:
             self._diag = (t, self._window.excitation())
         excitation = self._diag[1]
@@ -579,9 +650,9 @@ class BiasObserver:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> BiasObserver:
-        """Restore an observer saved by :meth:`to_dict`; a bad field is a :class:`StateError`
-        naming it."""
+    def from_dict(cls, d: dict[str, Any], *, committed: bool = False) -> BiasObserver:
+        """Restore an observer saved by :meth:`to_dict` (``committed`` as in the constructor);
+        a bad field is a :class:`StateError` naming it."""
         if not isinstance(d, dict):
             raise StateError(f"observer state must be a dictionary, got {type(d).__name__}")
         if d.get("schema") != STATE_SCHEMA:
@@ -592,7 +663,7 @@ class BiasObserver:
             raise StateError(f"config: {exc}") from exc
         except KeyError as exc:
             raise StateError("observer state has no 'config'") from exc
-        obs = cls(config)
+        obs = cls(config, committed=committed)
         n = config.n
         t_c = d.get("t_c")
         if t_c is not None:

@@ -15,7 +15,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
@@ -374,14 +374,20 @@ def replay(
     smooth_jsonl: Path | None = None,
     smooth_window_s: float = smoother.WINDOW_S,
     keep_map: bool = False,
+    live: bool = False,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
     the source has no usable velocity or bearing stream. ``link``: how a live source is read
     (a file ignores it). ``smooth`` (or ``smooth_jsonl``): afterwards, every target's
     estimate from the whole log (:mod:`mav_observer.smoother`), in the summary and, one
     record per bearing, in ``smooth_jsonl`` (``docs/schema.md``). ``keep_map``: the
-    summary's ``map_tracks`` for ``--geojson`` and ``--kml`` (:mod:`mav_observer.mapexport`)."""
-    tracker = Tracker(tracker_config)
+    summary's ``map_tracks`` for ``--geojson`` and ``--kml`` (:mod:`mav_observer.mapexport`).
+    ``live``: each bearing's estimate at its arrival, as the service publishes it; by default
+    (``TrackerConfig.publish = "auto"``) once the velocity after it is known
+    (``docs/cli.md``)."""
+    tc = tracker_config if tracker_config is not None else TrackerConfig()
+    publish = "live" if live else "committed" if tc.publish == "auto" else tc.publish
+    tracker = Tracker(replace(tc, publish=publish))
     smooth = smooth or smooth_jsonl is not None
     if smooth:
         tracker.sample_log = smoother.SampleLog()

@@ -309,6 +309,12 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
             "a bearing this close past a dense attitude stream's latest does not wait (s)",
         ),
         "sysids": ([], _list_of(_int(1, 255)), "only these vehicles (empty: all)"),
+        "publish": (
+            d.publish,
+            tc("publish", _string),
+            "auto: live in the service, committed in replay; live: each bearing's estimate at "
+            "its arrival; committed: once the velocity after it is known",
+        ),
     }
 
 
@@ -593,6 +599,7 @@ class Settings:
                 max_camera_attitude_age_s=t["max_camera_attitude_age_s"],
                 attitude_wait_s=t["attitude_wait_s"],
                 attitude_extrapolate_s=t["attitude_extrapolate_s"],
+                publish=t["publish"],
                 sysids=tuple(t["sysids"]) or None,
                 restore_max_gap_s=self.values["state"]["max_gap_s"],
                 observer=self.observer_config(),

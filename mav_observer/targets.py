@@ -53,8 +53,12 @@ class Resumed:
 class Targets:
     """The observers of one vehicle by target name, each with the message it reads."""
 
-    def __init__(self, config: ObserverConfig) -> None:
+    def __init__(self, config: ObserverConfig, *, committed: bool = False) -> None:
+        """``committed``: the observers publish the estimate at each bearing once committed
+        through it (:meth:`take_committed`), not a live one at its arrival
+        (``BiasObserver(committed=True)``)."""
         self.config = config
+        self.committed = committed
         self._obs: dict[str, tuple[BiasObserver, str]] = {}
 
     def __len__(self) -> int:
@@ -98,17 +102,31 @@ class Targets:
     ) -> tuple[Estimate | None, bool]:
         """Give ``target``'s observer the unit bearing ``y`` (NED) at ``t_s``, creating it
         (started from ``latest_velocity``, ``(t_s, v)``) on its first bearing. Returns the
-        estimate (``None`` while the observer has no velocity yet) and whether the observer
-        is new; raises :class:`InvalidSampleError` when the observer refuses the bearing."""
+        estimate (``None`` while the observer has no velocity yet, and always with
+        ``committed``: see :meth:`take_committed`) and whether the observer is new; raises
+        :class:`InvalidSampleError` when the observer refuses the bearing."""
         entry = self._obs.get(target)
         new = entry is None
         if entry is None:
-            obs = BiasObserver(self.config)
+            obs = BiasObserver(self.config, committed=self.committed)
             if latest_velocity is not None:
                 obs.update_velocity_values(*latest_velocity)
             self._obs[target] = entry = (obs, source)
+        if self.committed:
+            entry[0].add_bearing_values(t_s, y)
+            return None, new
         est = entry[0].update_bearing_values(t_s, y)
         return (est if entry[0].started else None), new
+
+    def take_committed(self, *, end: bool = False) -> list[tuple[str, str, Estimate]]:
+        """``(target, source, estimate)`` of every estimate committed since the previous call
+        (``committed``), each target's in time order; ``end``: the data have ended, the
+        bearings after the latest velocity are committed too (``commit_pending``)."""
+        out = []
+        for target, (obs, source) in self._obs.items():
+            ests = obs.commit_pending() if end else obs.take_committed()
+            out.extend((target, source, e) for e in ests)
+        return out
 
     def restart(self, target: str) -> bool:
         """Forget ``target``'s observer (its bearings were read wrongly): the next bearing
@@ -145,7 +163,7 @@ class Targets:
         observer already took its place."""
         out = []
         for e in entries:
-            obs = BiasObserver.from_dict(e["observer"])
+            obs = BiasObserver.from_dict(e["observer"], committed=self.committed)
             saved = e["vehicle"]
             t_c = float(obs.committed_t_s)  # type: ignore[arg-type]
             gap = fix.t_boot_s - t_c

@@ -875,3 +875,102 @@ def test_the_predicted_displacement_is_the_velocity_held_past_the_latest_sample(
     obs.update_velocity_values(0.0, [1.0, -2.0, 0.5])
     obs.update_velocity_values(1.0, [1.0, -2.0, 0.5])
     assert obs.predicted_displacement_m(1.0, 1.5) == pytest.approx([0.5, -1.0, 0.25])
+
+
+# -- committed estimates (replay's default) ----------------------------------------
+
+
+def _feed_committed(obs: BiasObserver, events: list) -> list:
+    out = []
+    for ev in events:
+        if isinstance(ev, BearingSample):
+            obs.add_bearing_values(ev.t_s, ev.y.tolist())
+        else:
+            obs.update_velocity(ev)
+        out.extend(obs.take_committed())
+    return out
+
+
+def test_committed_estimates_are_the_live_ones_where_the_velocity_is_at_the_bearing() -> None:
+    """Velocity sampled at the bearings' own times, before them: a live estimate is then
+    already the committed state at its bearing, and the committed mode gives exactly it
+    (every field, the status's sequence included), one per bearing, in time order."""
+    stream = generate(scenarios.orbit(duration_s=40.0), seed=3, noise=Noise(bearing_sigma_deg=0.5))
+    events = []
+    for tb, y, v in zip(
+        stream.t_bearing_s, stream.y, scenarios.orbit().v(stream.t_bearing_s), strict=True
+    ):
+        events += [VelocitySample(float(tb), v), BearingSample(float(tb), y)]
+    live = BiasObserver()
+    expected = [
+        live.update_bearing(ev) if isinstance(ev, BearingSample) else live.update_velocity(ev)
+        for ev in events
+    ]
+    expected = [e.to_dict() for e in expected if e is not None]
+    got = _feed_committed(BiasObserver(committed=True), events)
+    assert [e.to_dict() for e in got] == expected
+    assert len(got) == len(stream.t_bearing_s)
+
+
+def test_committed_mode_steps_the_same_filter_and_publishes_each_bearing_once() -> None:
+    """A 1 Hz velocity with 20 Hz bearings: committing bearing by bearing leaves the filter
+    where one commit per stretch leaves it (bit for bit); each bearing's estimate comes once
+    the velocity after it is in, at its time, and the ones after the last velocity when the
+    data end (``commit_pending``)."""
+    stream = generate(
+        scenarios.figure8(duration_s=60.0),
+        seed=4,
+        velocity_rate_hz=1.0,
+        noise=Noise(bearing_sigma_deg=0.5),
+    )
+    events = list(stream.events())
+    live = BiasObserver()
+    for ev in events:
+        (live.update_bearing if isinstance(ev, BearingSample) else live.update_velocity)(ev)
+    obs = BiasObserver(committed=True)
+    got = _feed_committed(obs, events)
+    tail = obs.commit_pending()
+    t_last_v = float(stream.t_velocity_s[-1])
+    assert all(e.t_s > t_last_v for e in tail) and all(e.t_s <= t_last_v for e in got)
+    times = [e.t_s for e in got + tail]
+    started = [float(t) for t in stream.t_bearing_s if t >= stream.t_velocity_s[0]]
+    assert times == started  # each bearing once, in order
+    assert all(e.bearing_age_s == 0.0 for e in got)
+    live.predict(float(stream.t_bearing_s[-1]))  # commits the live one as far
+    assert obs.committed_t_s == live.committed_t_s
+    assert np.array_equal(obs.covariance, live.covariance)
+    assert obs.a_mps == live.a_mps
+
+
+def test_committed_estimates_beat_live_ones_on_a_1_hz_velocity() -> None:
+    """Between 1 Hz velocity samples of a figure-8 a live estimate predicts the vehicle's
+    motion; the committed one, published after the next sample, interpolates it: closer to
+    the truth over the last 20 s (7.0 cm against 9.4 cm, without the positions' interval
+    means, which the tracker adds)."""
+    sc = scenarios.figure8(duration_s=120.0)
+    stream = generate(sc, seed=5, velocity_rate_hz=1.0, noise=Noise(bearing_sigma_deg=0.5))
+    events = list(stream.events())
+    live = BiasObserver()
+    live_est = [
+        live.update_bearing(e) if isinstance(e, BearingSample) else live.update_velocity(e)
+        for e in events
+    ]
+    live_est = [e for e in live_est if e is not None]
+    obs = BiasObserver(committed=True)
+    committed = _feed_committed(obs, events) + obs.commit_pending()
+
+    def rms(ests: list) -> float:
+        late = [e for e in ests if e.t_s > 100.0]
+        err = [np.linalg.norm(e.x_m - sc.x(np.array([e.t_s]))[0]) for e in late]
+        return float(np.sqrt(np.mean(np.square(err))))
+
+    assert rms(committed) < 0.8 * rms(live_est)
+
+
+def test_a_live_observer_keeps_nothing_committed() -> None:
+    """A live observer keeps nothing committed; ``take_committed`` is empty."""
+    stream = generate(scenarios.orbit(duration_s=5.0), noise=Noise(bearing_sigma_deg=0.5))
+    obs = BiasObserver()
+    for ev in stream.events():
+        (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
+    assert obs.take_committed() == [] and obs.commit_pending() == []

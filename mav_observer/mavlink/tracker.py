@@ -51,6 +51,7 @@ from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.mavlink.timebase import ClockMap
 from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
+from mav_observer.samples import Estimate
 from mav_observer.smoother import SampleLog
 from mav_observer.targets import Targets, VehicleFix, check_saved
 
@@ -60,6 +61,11 @@ SOURCES = ("gimbal", "camera", "mount", "mount_status", "landing_target", "home"
 AUTO_SOURCES = frozenset(SOURCES) - {"home"}
 MAV_AUTOPILOT_INVALID = 8
 POSITION_MAX_AGE_S = 1.0
+#: What the tracker publishes per bearing (``TrackerConfig.publish``).
+PUBLISH = ("auto", "live", "committed")
+#: LOCAL_POSITION_NED positions kept to interpolate the vehicle's position at a committed
+#: estimate's time.
+POSITION_HISTORY = 32
 
 
 #: LOCAL_POSITION_NED beyond these is nonsense, refused as ``out_of_range``: a speed no
@@ -121,6 +127,12 @@ class TrackerConfig:
     * ``restore_max_gap_s``: a saved observer older than this (vehicle time) is not restored
       (:meth:`Tracker.restore`).
     * ``observer``: settings of every observer (n must be 3).
+    * ``publish``: ``"live"``: each bearing's estimate at its arrival, the vehicle's motion
+      since the latest velocity sample predicted; ``"committed"``: each bearing's estimate
+      once the velocity after it has arrived (at most one velocity interval later),
+      interpolated, not predicted, that bearing applied, the vehicle's position interpolated
+      between LOCAL_POSITION_NED samples; ``"auto"``: live in the service, committed in
+      ``replay`` (``docs/cli.md``, "What replay publishes").
     """
 
     sources: tuple[str, ...] = ("auto",)
@@ -137,6 +149,7 @@ class TrackerConfig:
     sysids: tuple[int, ...] | None = None
     restore_max_gap_s: float = 600.0
     observer: ObserverConfig = field(default_factory=ObserverConfig)
+    publish: str = "auto"
 
     def __post_init__(self) -> None:
         srcs = tuple(self.sources)
@@ -171,6 +184,8 @@ class TrackerConfig:
                 raise ConfigError(f"{name} must be a number in [0, 5] s, got {w!r}")
         if self.observer.n != 3:
             raise ConfigError(f"observer n must be 3 for NED, got {self.observer.n}")
+        if self.publish not in PUBLISH:
+            raise ConfigError(f"publish must be one of {PUBLISH}, got {self.publish!r}")
 
     def enabled(self) -> frozenset[str]:
         if "auto" in self.sources:
@@ -217,6 +232,14 @@ class _Vehicle:
     autopilot_compid: int | None = None
     attitude: AttitudeHistory = field(default_factory=AttitudeHistory)
     position: tuple[float, Vec3, Vec3] | None = None  # t, pos, vel (NED)
+    #: the latest LOCAL_POSITION_NED positions ``(t, pos)``, for the vehicle's position at a
+    #: committed estimate's time (``publish = "committed"``)
+    positions: deque[tuple[float, Vec3]] = field(
+        default_factory=lambda: deque(maxlen=POSITION_HISTORY)
+    )
+    #: per target, ``(t_boot_s, t_arrival_s)`` of the bearings whose committed estimate has
+    #: not been published yet (``publish = "committed"``)
+    arrivals: dict[str, deque[tuple[float, float]]] = field(default_factory=dict)
     velocity: tuple[float, list[float]] | None = None  # latest (t, v) on the autopilot clock
     #: latest gimbal or mount attitude: ``(t, R_ned_cam)``, or ``(t, (q, flags, yaw,
     #: delta_yaw))`` from a gimbal, turned into the matrix only when a tracked point needs it
@@ -249,6 +272,29 @@ class _Vehicle:
     #: per gimbal device id, what the data say its angles are relative to
     #: (``gimbal_angles = "auto"``)
     gimbal_frames: dict[int, GimbalFrameDetector] = field(default_factory=dict)
+
+
+def _interpolated_position(positions: deque[tuple[float, Vec3]], t: float) -> Vec3 | None:
+    """The position (NED, m) at ``t`` interpolated linearly between the samples around it
+    (one at ``t``: that one); ``None`` when ``t`` is not between two of them."""
+    later = None
+    for tp, p in reversed(positions):
+        if tp <= t:
+            if tp == t:
+                return p
+            if later is None:
+                return None
+            t1, p1 = later
+            if t1 - tp > SPARSE_VELOCITY_MAX_S:  # a gap in the stream: no interpolation
+                return None
+            w = (t - tp) / (t1 - tp)
+            return (
+                p[0] + w * (p1[0] - p[0]),
+                p[1] + w * (p1[1] - p[1]),
+                p[2] + w * (p1[2] - p[2]),
+            )
+        later = (tp, p)
+    return None
 
 
 def _gimbal_target(device: int) -> str:
@@ -297,6 +343,8 @@ class Tracker:
         self._warned: Counter[str] = Counter()  # log rate limiting
         #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
         self._pending: dict[int, list[dict[str, Any]]] = {}
+        #: estimates committed when their vehicle was reset, published with the message's
+        self._orphans: list[EstimateRecord] = []
         self._handlers: dict[str, Callable[[_Vehicle, float, Any, list[EstimateRecord]], None]] = {
             "LOCAL_POSITION_NED": self._on_local_position,
             "ATTITUDE": self._on_attitude,
@@ -331,7 +379,7 @@ class Tracker:
             return []
         veh = self.vehicles.get(sysid)
         if veh is None:
-            veh = self.vehicles[sysid] = _Vehicle(sysid, Targets(self.config.observer))
+            veh = self.vehicles[sysid] = _Vehicle(sysid, self._new_targets())
         out: list[EstimateRecord] = []
         stamp = getattr(msg, "time_boot_ms", None)
         if stamp is not None:
@@ -342,18 +390,27 @@ class Tracker:
                 return out
             veh.last_time_ms[key] = stamp
         self._guarded(veh, mtype, handler, t_arrival_s, msg, out)
+        if self._orphans:  # committed before a reset of their vehicle: earlier than ``out``
+            out[:0] = self._orphans
+            self._orphans = []
         if veh.waiting:
             self._release(veh, t_arrival_s, out)
         return out
 
     def flush(self) -> list[EstimateRecord]:
         """Process the bearings still waiting for an attitude (the end of a replay), with
-        the attitude extrapolated; returns their estimates."""
+        the attitude extrapolated, and (``publish = "committed"``) commit the bearings still
+        waiting for a velocity after them; returns their estimates."""
         out: list[EstimateRecord] = []
         for veh in self.vehicles.values():
             while veh.waiting:
                 self._release(veh, math.inf, out)
+            if veh.targets.committed:
+                self._publish_committed(veh, out, end=True)
         return out
+
+    def _new_targets(self) -> Targets:
+        return Targets(self.config.observer, committed=self.config.publish == "committed")
 
     def _guarded(
         self,
@@ -549,12 +606,12 @@ class Tracker:
             len(veh.targets),
         )
         self._note(veh, f"autopilot_{event}")
+        if veh.targets.committed:  # what the old observers had not published yet
+            self._publish_committed(veh, self._orphans, end=True)
         if self.sample_log is not None:
             self.sample_log.new_epoch(veh.sysid)
         keep = veh.autopilot_compid
-        fresh = _Vehicle(
-            veh.sysid, Targets(self.config.observer), autopilot_compid=keep, skipped=veh.skipped
-        )
+        fresh = _Vehicle(veh.sysid, self._new_targets(), autopilot_compid=keep, skipped=veh.skipped)
         if self._pending.pop(veh.sysid, None):
             log.warning("vehicle %d: saved observers discarded (autopilot rebooted)", veh.sysid)
         veh.__dict__.update(fresh.__dict__)
@@ -585,6 +642,7 @@ class Tracker:
             raise Skip("out_of_order", f"LOCAL_POSITION_NED at {tb:.3f} s after a later one")
         mean_v = self._interval_mean_velocity(veh, tb, pos, vel)
         veh.position = (tb, pos, vel)
+        veh.positions.append((tb, pos))
         veh.lpn_ms = (msg.time_boot_ms, pos)
         if veh.gpi_ms is not None and veh.gpi_ms[0] == msg.time_boot_ms:
             self._pair_global_local(veh)
@@ -598,6 +656,8 @@ class Tracker:
             self.skipped["refused_velocity"] += 1
             veh.skipped["refused_velocity"] += 1
             log.debug("vehicle %d: velocity refused: %s", veh.sysid, exc)
+        if veh.targets.committed:
+            self._publish_committed(veh, out)
         if "home" in self.enabled and veh.home is not None:
             h = veh.home
             self._bearing(
@@ -865,6 +925,7 @@ class Tracker:
         if decided == "body":  # its estimate and bearings so far read the angles wrongly
             target = _gimbal_target(dev)
             veh.targets.restart(target)
+            veh.arrivals.pop(target, None)
             if self.sample_log is not None:
                 self.sample_log.forget_bearings(veh.sysid, target)
         log.log(
@@ -1050,30 +1111,61 @@ class Tracker:
         if new:
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
+        if veh.targets.committed:
+            if obs is not None and obs.started:
+                veh.arrivals.setdefault(target, deque()).append((tb, t_arrival))
+            else:  # no velocity yet: the bearing waits, nothing to report
+                self.events["estimates_withheld_no_velocity"] += 1
+            self._publish_committed(veh, out)
+            return
         if est is None:  # no velocity yet: the bearing waits, nothing to report
             self.events["estimates_withheld_no_velocity"] += 1
             return
-        vpos = None
-        if veh.position is not None:
-            tp, p, u = veh.position
-            dt = tb - tp
-            if abs(dt) <= POSITION_MAX_AGE_S:
-                # the latest position moved on the way the estimate was: by minus the
-                # observer's predicted displacement of x less ``a`` dt (``a`` is the
-                # velocity's error where the target stands still; with (2, -1, 0) m/s of it,
-                # moved on with the velocity as measured the position was 0.18 m off 0.09 s
-                # after a 10 Hz sample; on a 1 Hz stream the observer continues a trend, and a
-                # position moved on otherwise put the target 2.8 cm off, outside its sigma)
-                a0, a1, a2 = est.a_mps.tolist()
-                disp = None if obs is None else obs.predicted_displacement_m(tp, tb)
-                if disp is None:
-                    disp = [-u[0] * dt, -u[1] * dt, -u[2] * dt]
-                vpos = (
-                    p[0] - disp[0] - a0 * dt,
-                    p[1] - disp[1] - a1 * dt,
-                    p[2] - disp[2] - a2 * dt,
-                )
+        vpos = self._predicted_position(veh, obs, est, tb)
         out.append(EstimateRecord(t_arrival, tb, veh.sysid, target, source, est, vpos, veh.origin))
+
+    def _predicted_position(
+        self, veh: _Vehicle, obs: BiasObserver | None, est: Estimate, tb: float
+    ) -> Vec3 | None:
+        """The vehicle's position (NED, m) at ``tb`` from the latest LOCAL_POSITION_NED, moved
+        on the way the estimate was; ``None`` without one near ``tb``."""
+        if veh.position is None:
+            return None
+        tp, p, u = veh.position
+        dt = tb - tp
+        if abs(dt) > POSITION_MAX_AGE_S:
+            return None
+        # the latest position moved on the way the estimate was: by minus the observer's
+        # predicted displacement of x less ``a`` dt (``a`` is the velocity's error where the
+        # target stands still; with (2, -1, 0) m/s of it, moved on with the velocity as
+        # measured the position was 0.18 m off 0.09 s after a 10 Hz sample; on a 1 Hz stream
+        # the observer continues a trend, and a position moved on otherwise put the target
+        # 2.8 cm off, outside its sigma)
+        a0, a1, a2 = est.a_mps.tolist()
+        disp = None if obs is None else obs.predicted_displacement_m(tp, tb)
+        if disp is None:
+            disp = [-u[0] * dt, -u[1] * dt, -u[2] * dt]
+        return (p[0] - disp[0] - a0 * dt, p[1] - disp[1] - a1 * dt, p[2] - disp[2] - a2 * dt)
+
+    def _publish_committed(
+        self, veh: _Vehicle, out: list[EstimateRecord], *, end: bool = False
+    ) -> None:
+        """Records of the estimates committed since the last call (``publish =
+        "committed"``), each with its bearing's arrival time and the vehicle's position at
+        its time interpolated between the LOCAL_POSITION_NED samples around it (the latest
+        one moved on past the last: ``end``, the data ended)."""
+        for target, source, est in veh.targets.take_committed(end=end):
+            tb = est.t_s
+            t_arr = tb
+            pending = veh.arrivals.get(target)
+            while pending and pending[0][0] < tb:
+                pending.popleft()
+            if pending and pending[0][0] == tb:
+                t_arr = pending.popleft()[1]
+            vpos = _interpolated_position(veh.positions, tb)
+            if vpos is None:
+                vpos = self._predicted_position(veh, veh.targets.get(target), est, tb)
+            out.append(EstimateRecord(t_arr, tb, veh.sysid, target, source, est, vpos, veh.origin))
 
     def vehicle_attitude(self, sysid: int, t_boot_s: float) -> tuple[float, float, float] | None:
         """Vehicle ``sysid``'s roll, pitch, yaw (rad) at ``t_boot_s`` (its autopilot clock),
