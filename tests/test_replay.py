@@ -420,3 +420,20 @@ def test_smooth_writes_the_whole_logs_estimate_with_its_uncertainty(
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["targets"]["1/gimbal"]["smoothed"]["1/gimbal"]["windows_fitted"] == 1
     assert summary["targets"]["1/gimbal"]["noise"]["bearing_noise_learnt"] is True
+
+
+def test_replay_live_publishes_what_the_service_would(tmp_path: Path) -> None:
+    """``replay --live``: each bearing's estimate at its arrival, as the service publishes
+    it; without, once committed (here the BlueROV log's first MOUNT_STATUS, before the first
+    velocity, has a live estimate only). The flag's output is the API's ``live=True``."""
+    log = str(TLOGS / "gimbal_ardusub_bluerov_small.tlog")
+    counts = {}
+    for flag in ("--live", None):
+        out = tmp_path / f"{flag}.jsonl"
+        proc = _cli("replay", log, "-q", "-o", str(out), *([flag] if flag else []))
+        assert proc.returncode == 0, proc.stderr
+        counts[flag] = len(out.read_text().splitlines())
+    assert counts == {"--live": 792, None: 791}
+    api = tmp_path / "api.jsonl"
+    rp.replay(log, output_jsonl=api, live=True)
+    assert api.read_text() == (tmp_path / "--live.jsonl").read_text()

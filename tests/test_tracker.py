@@ -753,3 +753,51 @@ def test_a_gimbal_reading_found_from_the_data_survives_a_restart() -> None:
     bad = [dict(saved[0], gimbal_angles="sideways")]
     with pytest.raises(StateError, match=r"observers\[0\]\.gimbal_angles"):
         Tracker().restore(bad)
+
+
+# -- committed publishing (replay's default) ---------------------------------------
+
+
+def _sparse_flight(n_s: int = 30) -> list:
+    """A vehicle flying north at 1 m/s with LOCAL_POSITION_NED at 1 Hz, attitude and gimbal
+    (45 deg down) at 10 Hz."""
+    msgs = []
+    for i in range(10 * n_s):
+        ms = 100_000 + 100 * i
+        msgs.append(att(ms))
+        if i % 10 == 0:
+            msgs.append(lpn(ms, (0.1 * i, 0.0, -10.0)))
+        msgs.append(gimbal(ms + 5))
+    return msgs
+
+
+def test_committed_records_come_once_the_velocity_after_them_is_in() -> None:
+    """``publish = "committed"``: one record per bearing, as live, but each once the
+    LOCAL_POSITION_NED after it has arrived (the last second's at the end, from ``flush``),
+    with its bearing's arrival time and the vehicle's position interpolated between the
+    samples around it (the vehicle's true position here: it flies straight at 1 m/s)."""
+    msgs = _sparse_flight()
+    live = feed(Tracker(), msgs)
+    tr = Tracker(TrackerConfig(publish="committed"))
+    out, when = [], []
+    for m in msgs:
+        ms = getattr(m, "time_boot_ms", None)
+        recs = tr.handle(T0_UNIX + (ms - 100_000) / 1000.0 + 0.01, m)
+        when += [(r.t_boot_s, m.get_type(), ms) for r in recs]
+        out += recs
+    tail = tr.flush()
+    assert [r.t_boot_s for r in out + tail] == [r.t_boot_s for r in live]
+    # a bearing's record waits for the next second's position: published by a later message
+    assert all(t < ms / 1000.0 for t, _, ms in when)
+    assert max(ms / 1000.0 - t for t, _, ms in when) < 1.0 + 0.1  # at most one interval
+    assert all(math.floor(r.t_boot_s) == 129 for r in tail) and len(tail) == 10
+    # past the last position: moved on as live (with the velocity less the bias estimated)
+    assert all(r.vehicle_pos_ned_m is not None for r in tail)
+    for r in out:
+        assert r.t_unix_s == pytest.approx(T0_UNIX + r.t_boot_s - 100.0 + 0.01)
+        assert r.vehicle_pos_ned_m == pytest.approx((r.t_boot_s - 100.0, 0.0, -10.0), abs=1e-9)
+
+
+def test_publish_names_a_bad_value() -> None:
+    with pytest.raises(ConfigError, match="publish must be one of"):
+        TrackerConfig(publish="later")
