@@ -1,7 +1,7 @@
 """End-to-end accuracy: emitter tlogs replayed through the product, scored against the truth.
 
 ``python -m bench.accuracy.e2e [--cases NAME ...] [--seeds N] [--duration S] [--jobs J]``
-``[--defaults | --adaptive] [--write-docs]``
+``[--defaults | --adaptive] [--live] [--write-docs]``
 
 Unlike the batched harness (:mod:`bench.accuracy.run`), which feeds the estimator's maths
 directly, every run here goes the way a user's data goes:
@@ -12,7 +12,9 @@ directly, every run here goes the way a user's data goes:
    yaw, sparse or coloured velocity, dropouts, tlog clock jitter and jumps), with its truth;
 2. the tlog is replayed by the product's own replay (:func:`mav_observer.replay.replay`) with
    the settings a user would write in a settings file (``settings`` of the case: the bearing
-   and velocity noise told, or nothing for the defaults);
+   and velocity noise told, or nothing for the defaults): what replay publishes by default,
+   each bearing's estimate once the velocity after it is known, or with ``--live`` what the
+   service publishes, each at its arrival;
 3. the estimates are scored against the truth: position RMS over the last third and its ratio
    to the Cramér-Rao bound along the same truth (:func:`bench.accuracy.core.crlb` of the
    stream's true noise: the bearing noise, the velocity's white noise and its Gauss-Markov
@@ -470,10 +472,12 @@ def run_one(
     workdir: str | None = None,
     defaults: bool = False,
     keep_records: bool = False,
+    live: bool = False,
 ) -> dict:
     """Emit, replay and score one run of a case (a process-pool task); ``defaults``: the
     product's default settings instead of the case's (the noise not told); ``keep_records``:
-    the run's estimate records and truth too (``records``, ``truth``)."""
+    the run's estimate records and truth too (``records``, ``truth``); ``live``: replay's
+    ``--live`` (what the service publishes) instead of its default (committed estimates)."""
     case = CASES[case_name]
     if defaults:
         case = replace(case, settings={})
@@ -494,7 +498,7 @@ def run_one(
         settings = d / "settings.toml"  # what the user writes, read as replay --config does
         settings.write_text(settings_toml(case.settings, case.tracker))
         tc = st.resolve(settings).tracker_config()
-        summary = replay(str(tlog), tracker_config=tc, output_jsonl=out)
+        summary = replay(str(tlog), tracker_config=tc, output_jsonl=out, live=live)
         t_replay = time.perf_counter() - t_wall - t_emit
         target = em.TARGET_OF[case.bearing]
         noise_end = summary.targets[f"{cfg.sysid}/{target}"].noise
@@ -506,7 +510,11 @@ def run_one(
             cut = (t_first or 0) + 60_000_000
             kept = [r.data for r in recs if r.t_us is not None and r.t_us <= cut]
             early.write_bytes(b"".join(kept))
-            noise_60 = replay(str(early), tracker_config=tc).targets[f"{cfg.sysid}/{target}"].noise
+            noise_60 = (
+                replay(str(early), tracker_config=tc, live=live)
+                .targets[f"{cfg.sysid}/{target}"]
+                .noise
+            )
         records = [r for r in read_jsonl(out) if r["target"] == target]
         truth = truth_file.read(truth_path, target)
     dt_v = 1.0 / cfg.position_hz
@@ -580,19 +588,27 @@ def pooled(runs: list[dict]) -> dict[str, float]:
 
 
 def run_cases(
-    names: Sequence[str], seeds: int, duration_s: float, jobs: int, defaults: bool = False
+    names: Sequence[str],
+    seeds: int,
+    duration_s: float,
+    jobs: int,
+    defaults: bool = False,
+    live: bool = False,
 ) -> dict[str, dict[str, Any]]:
     tasks = [(n, s) for n in names for s in range(seeds)]
     out: dict[str, list[dict]] = {n: [] for n in names}
     k = len(tasks)
     if jobs <= 1:
-        results = [run_one(n, s, duration_s, None, defaults) for n, s in tasks]
+        results = [run_one(n, s, duration_s, None, defaults, False, live) for n, s in tasks]
     else:
         with ProcessPoolExecutor(jobs) as pool:
             names_, seeds_ = zip(*tasks, strict=True)
             results = list(
-                pool.map(run_one, names_, seeds_, [duration_s] * k, [None] * k, [defaults] * k)
-            )
+                pool.map(
+                    run_one, names_, seeds_, [duration_s] * k, [None] * k, [defaults] * k,
+                    [False] * k, [live] * k,
+                )
+            )  # fmt: skip
     for r in results:
         out[r["case"]].append(r)
     return {n: {"pooled": pooled(rs), "runs": rs} for n, rs in out.items()}
@@ -807,6 +823,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the product's default settings instead of each case's (the noise not told)",
     )
     p.add_argument(
+        "--live",
+        action="store_true",
+        help="replay --live: what the service publishes (each bearing's estimate at its "
+        "arrival) instead of replay's default (once the velocity after it is known); no docs "
+        "block of its own",
+    )
+    p.add_argument(
         "--adaptive",
         action="store_true",
         help=f"the cases of the noise not told and outliers {ADAPTIVE} (already with the "
@@ -832,13 +855,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(geo_table(res))
         return 0
     block = None
+    if args.write_docs and args.live:
+        p.error("--live has no docs block: give its --json to the docs by hand")
     if args.write_docs:  # refused before the runs, not after
         try:
             block = block_of(args.cases, defaults=args.defaults, adaptive=args.adaptive)
         except ValueError as e:
             p.error(str(e))
     t0 = time.perf_counter()
-    res = run_cases(args.cases, args.seeds, args.duration, args.jobs, args.defaults)
+    res = run_cases(args.cases, args.seeds, args.duration, args.jobs, args.defaults, args.live)
     wall = time.perf_counter() - t0
     print(table(res))
     print(geo_table(res))
