@@ -4,14 +4,17 @@
 
 The bar of the real-log bench (:mod:`bench.accuracy.reallogs`) is the batch least-squares fit
 over the whole log, which uses every bearing, past and future, for each position. A live
-estimator (the service, and replay, which gives what the service would have published) has at
-time ``t`` only the bearings up to ``t``, and of the vehicle's positions only those
-LOCAL_POSITION_NED has sent by then: between two samples of a 1 Hz stream it must predict where
-the vehicle went. For each log and seed (the same injection as the real-log bench: a 0.5 deg,
-10 Hz gimbal bearing toward a point under the flight, a (2, -1, 0) m/s velocity error) this
-reports, as position RMS relative to the range over the last third of the injected span:
+estimator (the service, and ``replay --live``, which gives what the service would have
+published) has at time ``t`` only the bearings up to ``t``, and of the vehicle's positions
+only those LOCAL_POSITION_NED has sent by then: between two samples of a 1 Hz stream it must
+predict where the vehicle went. ``replay`` by default publishes each bearing's estimate once
+the next velocity sample is in (``docs/cli.md``): it knows where the vehicle went. For each
+log and seed (the same injection as the real-log bench: a 0.5 deg, 10 Hz gimbal bearing
+toward a point under the flight, a (2, -1, 0) m/s velocity error) this reports, as position
+RMS relative to the range over the last third of the injected span:
 
-* ``product``: ``mav-observer replay`` with the default settings (as the real-log bench);
+* ``product``: ``mav-observer replay`` with the default settings (as the real-log bench),
+  and ``product, live``: with ``--live``;
 * ``batch``: the whole-log fit (the real-log bench's reference);
 * ``causal, interpolated``: at ``K`` times of the last third, the fit of the bearings up to
   that time, the vehicle's positions interpolated between LOCAL_POSITION_NED samples (it
@@ -97,6 +100,7 @@ def run_log(
     """The product and the whole-log fit (:func:`bench.accuracy.reallogs.run_log`) and the
     causal fits of one log and seed."""
     row = reallogs.run_log(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
+    live = reallogs.run_log(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error, live=True)
     res = reallogs.injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
     truth = res.truth
     epochs = [d.get("epoch", 0) for d in truth]
@@ -120,6 +124,7 @@ def run_log(
         "lpn_hz": row["lpn_hz"],
         "range_last_third_m": row["range_last_third_m"],
         "product_rel_rms": row["product_rel_rms"],
+        "product_live_rel_rms": live["product_rel_rms"],
         "batch_rel_rms": row["batch_rel_rms"],
         "causal_interpolated_rel_rms": c["interpolated"],
         "causal_extrapolated_rel_rms": c["extrapolated"],
@@ -129,23 +134,26 @@ def run_log(
 def table(rows: list[dict[str, Any]]) -> str:
     out = []
     for r in rows:
-        p, ce = r["product_rel_rms"], r["causal_extrapolated_rel_rms"]
+        p, pl = r["product_rel_rms"], r["product_live_rel_rms"]
+        ci, ce = r["causal_interpolated_rel_rms"], r["causal_extrapolated_rel_rms"]
         out.append(
             f"| {r['log']} (seed {r['seed']}) | {r['lpn_hz']:.1f} Hz "
-            f"| {r['range_last_third_m']:.1f} m | {100 * p:.2f} % "
+            f"| {r['range_last_third_m']:.1f} m | {100 * p:.2f} % | {100 * pl:.2f} % "
             f"| {100 * r['batch_rel_rms']:.2f} % "
-            f"| {100 * r['causal_interpolated_rel_rms']:.2f} % | {100 * ce:.2f} % "
-            f"| {p / ce:.2f}x |"
+            f"| {100 * ci:.2f} % | {100 * ce:.2f} % "
+            f"| {p / ci:.2f}x | {pl / ce:.2f}x |"
         )
     columns = (
         "log",
         "LPN rate",
         "range (last third)",
         "product",
+        "product, live",
         "batch (whole log)",
         "causal, interpolated",
         "causal, extrapolated",
-        "product / causal extrapolated",
+        "product / causal interpolated",
+        "live / causal extrapolated",
     )
     return markdown_table(columns, out)
 

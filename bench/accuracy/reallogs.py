@@ -108,8 +108,10 @@ def run_log(
     vel_error: tuple[float, float, float] = (2.0, -1.0, 0.0),
     observer: dict[str, Any] | None = None,
     workdir: Path | None = None,
+    live: bool = False,
 ) -> dict[str, Any]:
-    """Inject, replay, fit and score one log."""
+    """Inject, replay, fit and score one log (``live``: ``replay --live``, what the service
+    publishes, instead of replay's default)."""
     res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "injected.tlog"
@@ -119,7 +121,7 @@ def run_log(
         tc = TrackerConfig(observer=ObserverConfig(**(observer or {})))
         summary = None
         try:
-            summary = replay(str(path), tracker_config=tc, output_jsonl=out, smooth=True)
+            summary = replay(str(path), tracker_config=tc, output_jsonl=out, smooth=True, live=live)
             events = dict(summary.events)
         except ReplayError as exc:
             events = {"replay_error": str(exc)}
