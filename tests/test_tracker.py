@@ -774,8 +774,9 @@ def _sparse_flight(n_s: int = 30) -> list:
 def test_committed_records_come_once_the_velocity_after_them_is_in() -> None:
     """``publish = "committed"``: one record per bearing, as live, but each once the
     LOCAL_POSITION_NED after it has arrived (the last second's at the end, from ``flush``),
-    with its bearing's arrival time and the vehicle's position interpolated between the
-    samples around it (the vehicle's true position here: it flies straight at 1 m/s)."""
+    with its bearing's arrival time and the vehicle's position: the LOCAL_POSITION_NED at or
+    before it moved on the way the estimate was (the velocity, 1 m/s north, less the
+    estimated bias ``a``: the vehicle's error where the target stands still)."""
     msgs = _sparse_flight()
     live = feed(Tracker(), msgs)
     tr = Tracker(TrackerConfig(publish="committed"))
@@ -791,11 +792,13 @@ def test_committed_records_come_once_the_velocity_after_them_is_in() -> None:
     assert all(t < ms / 1000.0 for t, _, ms in when)
     assert max(ms / 1000.0 - t for t, _, ms in when) < 1.0 + 0.1  # at most one interval
     assert all(math.floor(r.t_boot_s) == 129 for r in tail) and len(tail) == 10
-    # past the last position: moved on as live (with the velocity less the bias estimated)
-    assert all(r.vehicle_pos_ned_m is not None for r in tail)
-    for r in out:
+    for r in out + tail:
         assert r.t_unix_s == pytest.approx(T0_UNIX + r.t_boot_s - 100.0 + 0.01)
-        assert r.vehicle_pos_ned_m == pytest.approx((r.t_boot_s - 100.0, 0.0, -10.0), abs=1e-9)
+        t_fix = math.floor(r.t_boot_s)  # the second's LOCAL_POSITION_NED
+        dt = r.t_boot_s - t_fix
+        a = r.estimate.a_mps.tolist()
+        expected = (t_fix - 100.0 + (1.0 - a[0]) * dt, -a[1] * dt, -10.0 - a[2] * dt)
+        assert r.vehicle_pos_ned_m == pytest.approx(expected, abs=1e-9)
 
 
 def test_publish_names_a_bad_value() -> None:

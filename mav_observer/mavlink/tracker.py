@@ -130,8 +130,9 @@ class TrackerConfig:
     * ``publish``: ``"live"``: each bearing's estimate at its arrival, the vehicle's motion
       since the latest velocity sample predicted; ``"committed"``: each bearing's estimate
       once the velocity after it has arrived (at most one velocity interval later),
-      interpolated, not predicted, that bearing applied, the vehicle's position interpolated
-      between LOCAL_POSITION_NED samples; ``"auto"``: live in the service, committed in
+      interpolated, not predicted, that bearing applied, the vehicle's position moved on from
+      the LOCAL_POSITION_NED before it by the velocity known on both sides; ``"auto"``: live
+      in the service, committed in
       ``replay`` (``docs/cli.md``, "What replay publishes").
     """
 
@@ -232,9 +233,9 @@ class _Vehicle:
     autopilot_compid: int | None = None
     attitude: AttitudeHistory = field(default_factory=AttitudeHistory)
     position: tuple[float, Vec3, Vec3] | None = None  # t, pos, vel (NED)
-    #: the latest LOCAL_POSITION_NED positions ``(t, pos)``, for the vehicle's position at a
+    #: the latest LOCAL_POSITION_NED ``(t, pos, vel)``, for the vehicle's position at a
     #: committed estimate's time (``publish = "committed"``)
-    positions: deque[tuple[float, Vec3]] = field(
+    positions: deque[tuple[float, Vec3, Vec3]] = field(
         default_factory=lambda: deque(maxlen=POSITION_HISTORY)
     )
     #: per target, ``(t_boot_s, t_arrival_s)`` of the bearings whose committed estimate has
@@ -272,29 +273,6 @@ class _Vehicle:
     #: per gimbal device id, what the data say its angles are relative to
     #: (``gimbal_angles = "auto"``)
     gimbal_frames: dict[int, GimbalFrameDetector] = field(default_factory=dict)
-
-
-def _interpolated_position(positions: deque[tuple[float, Vec3]], t: float) -> Vec3 | None:
-    """The position (NED, m) at ``t`` interpolated linearly between the samples around it
-    (one at ``t``: that one); ``None`` when ``t`` is not between two of them."""
-    later = None
-    for tp, p in reversed(positions):
-        if tp <= t:
-            if tp == t:
-                return p
-            if later is None:
-                return None
-            t1, p1 = later
-            if t1 - tp > SPARSE_VELOCITY_MAX_S:  # a gap in the stream: no interpolation
-                return None
-            w = (t - tp) / (t1 - tp)
-            return (
-                p[0] + w * (p1[0] - p[0]),
-                p[1] + w * (p1[1] - p[1]),
-                p[2] + w * (p1[2] - p[2]),
-            )
-        later = (tp, p)
-    return None
 
 
 def _gimbal_target(device: int) -> str:
@@ -642,7 +620,7 @@ class Tracker:
             raise Skip("out_of_order", f"LOCAL_POSITION_NED at {tb:.3f} s after a later one")
         mean_v = self._interval_mean_velocity(veh, tb, pos, vel)
         veh.position = (tb, pos, vel)
-        veh.positions.append((tb, pos))
+        veh.positions.append((tb, pos, vel))
         veh.lpn_ms = (msg.time_boot_ms, pos)
         if veh.gpi_ms is not None and veh.gpi_ms[0] == msg.time_boot_ms:
             self._pair_global_local(veh)
@@ -1125,13 +1103,20 @@ class Tracker:
         out.append(EstimateRecord(t_arrival, tb, veh.sysid, target, source, est, vpos, veh.origin))
 
     def _predicted_position(
-        self, veh: _Vehicle, obs: BiasObserver | None, est: Estimate, tb: float
+        self,
+        veh: _Vehicle,
+        obs: BiasObserver | None,
+        est: Estimate,
+        tb: float,
+        fix: tuple[float, Vec3, Vec3] | None = None,
     ) -> Vec3 | None:
-        """The vehicle's position (NED, m) at ``tb`` from the latest LOCAL_POSITION_NED, moved
-        on the way the estimate was; ``None`` without one near ``tb``."""
-        if veh.position is None:
+        """The vehicle's position (NED, m) at ``tb`` from the LOCAL_POSITION_NED ``fix``
+        (default: the latest), moved on the way the estimate was; ``None`` without one near
+        ``tb``."""
+        fix = fix if fix is not None else veh.position
+        if fix is None:
             return None
-        tp, p, u = veh.position
+        tp, p, u = fix
         dt = tb - tp
         if abs(dt) > POSITION_MAX_AGE_S:
             return None
@@ -1152,8 +1137,8 @@ class Tracker:
     ) -> None:
         """Records of the estimates committed since the last call (``publish =
         "committed"``), each with its bearing's arrival time and the vehicle's position at
-        its time interpolated between the LOCAL_POSITION_NED samples around it (the latest
-        one moved on past the last: ``end``, the data ended)."""
+        its time: the LOCAL_POSITION_NED at or before it moved on the way the estimate was
+        (by the velocity the observer integrated there, known on both sides)."""
         for target, source, est in veh.targets.take_committed(end=end):
             tb = est.t_s
             t_arr = tb
@@ -1162,9 +1147,8 @@ class Tracker:
                 pending.popleft()
             if pending and pending[0][0] == tb:
                 t_arr = pending.popleft()[1]
-            vpos = _interpolated_position(veh.positions, tb)
-            if vpos is None:
-                vpos = self._predicted_position(veh, veh.targets.get(target), est, tb)
+            fix = next((f for f in reversed(veh.positions) if f[0] <= tb), None)
+            vpos = self._predicted_position(veh, veh.targets.get(target), est, tb, fix)
             out.append(EstimateRecord(t_arr, tb, veh.sysid, target, source, est, vpos, veh.origin))
 
     def vehicle_attitude(self, sysid: int, t_boot_s: float) -> tuple[float, float, float] | None:
