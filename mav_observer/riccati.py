@@ -290,7 +290,10 @@ class BankParams:
       of ``range_rel_std`` times its range along the bearing.
     * ``bias_std_mps``: prior standard deviation of each component of ``a``.
     * ``prune``: a hypothesis whose weight falls below this is dropped; ``prune_early``
-      instead for the first ``prune_early_s`` of a run (since its seeding). Early, before the
+      instead for the first ``prune_early_s`` of a run, until its first re-seeding (a
+      re-seeded bank starts where its Riccati observer is; kept lenient there too, the
+      far hypotheses of each of the SITL servo log's ten re-acquisitions lingered, and its
+      estimate over the last third read as body angles went from 1.2 m to 13.5 m). Early, before the
       vehicle's motion has told the ranges apart, the weights say little: a vehicle hovering
       2.5 m from its target lost, within 0.7 s at 1e-4, the two hypotheses nearest the truth
       (a still bearing is far likelier for a distant target while the bias is unknown), and
@@ -640,7 +643,8 @@ def bank_update(bank: Bank, y: np.ndarray, h_s: float, prm: BankParams) -> None:
         bank.noise_alpha = rho * bank.noise_alpha + 0.5 * m
         bank.noise_beta = rho * bank.noise_beta + 0.5 * stat
 
-    floor = np.where(bank.age_s < prm.prune_early_s, prm.prune_early, prm.prune)
+    early = (bank.age_s < prm.prune_early_s) & (bank.reseeds == 0)
+    floor = np.where(early, prm.prune_early, prm.prune)
     keep = np.exp(bank.logw) >= floor[bank.owner]
     if not keep.all():
         _select(bank, keep)

@@ -446,7 +446,8 @@ def update(s: Single, y: list[float], h_s: float, prm: riccati.BankParams) -> bo
         s.noise_alpha = rho * s.noise_alpha + 0.5 * M
         s.noise_beta = rho * s.noise_beta + 0.5 * stat
     if f > 1:
-        floor = prm.prune_early if s.age_s < prm.prune_early_s else prm.prune
+        early = s.age_s < prm.prune_early_s and s.reseeds == 0
+        floor = prm.prune_early if early else prm.prune
         keep = [i for i in range(f) if math.exp(s.logw[i]) >= floor]
         if len(keep) < f:
             _select(s, keep)
