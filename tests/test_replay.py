@@ -72,6 +72,8 @@ def test_real_simulator_flight_finds_the_region_of_interest(tmp_path: Path) -> N
     )
     recs = [json.loads(line) for line in out.read_text().splitlines()]
     t = np.array([r["t_boot_s"] for r in recs])
+    # every record keeps its bearing's arrival (tlog) time, the first one's included
+    assert all(1.7e9 < r["t_unix_s"] < 1.9e9 for r in recs)
     tp = np.array([r["target_pos_ned_m"] or [np.nan] * 3 for r in recs], dtype=float)
     third = t >= t[0] + 2.0 / 3.0 * (t[-1] - t[0])
     assert float(np.nanmedian(np.linalg.norm(tp[third] - roi, axis=1))) < 6.0

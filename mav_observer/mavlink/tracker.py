@@ -66,6 +66,8 @@ PUBLISH = ("auto", "live", "committed")
 #: LOCAL_POSITION_NED positions kept to interpolate the vehicle's position at a committed
 #: estimate's time.
 POSITION_HISTORY = 32
+#: Bearings' arrival times kept per target until their committed estimate is published.
+MAX_PENDING_ARRIVALS = 4096
 
 
 #: LOCAL_POSITION_NED beyond these is nonsense, refused as ``out_of_range``: a speed no
@@ -1090,9 +1092,11 @@ class Tracker:
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)
         if veh.targets.committed:
-            if obs is not None and obs.started:
-                veh.arrivals.setdefault(target, deque()).append((tb, t_arrival))
-            else:  # no velocity yet: the bearing waits, nothing to report
+            pending = veh.arrivals.get(target)
+            if pending is None:
+                pending = veh.arrivals[target] = deque(maxlen=MAX_PENDING_ARRIVALS)
+            pending.append((tb, t_arrival))
+            if obs is None or not obs.started:  # no velocity yet: nothing to report yet
                 self.events["estimates_withheld_no_velocity"] += 1
             self._publish_committed(veh, out)
             return
@@ -1141,7 +1145,8 @@ class Tracker:
         (by the velocity the observer integrated there, known on both sides)."""
         for target, source, est in veh.targets.take_committed(end=end):
             tb = est.t_s
-            t_arr = tb
+            # its bearing's arrival (else, a bearing not on record, the latest message's)
+            t_arr = veh.latest_boot[1] if veh.latest_boot is not None else math.nan
             pending = veh.arrivals.get(target)
             while pending and pending[0][0] < tb:
                 pending.popleft()
