@@ -399,26 +399,18 @@ class BiasObserver:
         """Step the committed state to ``horizon`` and commit it (with ``committed=True``,
         bearing by bearing, keeping the estimate at each). Computes every piece before
         committing any: if the maths raised, nothing would have changed."""
-        if not self._keep_committed:
-            t0 = self._t_c
-            est, intervals, corrections = self._step(self._est, t0, horizon)  # type: ignore[arg-type]
-            self._est = est
-            self._t_c = horizon
-            self._window.add_interval(*intervals)
-            if corrections is not None:
-                self._window.add_correction(*corrections)
-            return
         t0: float = self._t_c  # type: ignore[assignment]
-        stops = [t for t, _ in self._streams.bearings if t0 < t <= horizon]
-        if not stops or stops[-1] < horizon:
-            stops.append(horizon)
+        stops = [horizon]
+        bearing_times: set[float] = set()
+        if self._keep_committed:
+            bearing_times = {t for t, _ in self._streams.bearings if t0 < t <= horizon}
+            stops = sorted(bearing_times | {horizon})
         pieces = []
         est = self._est
         for t1 in stops:
             est, intervals, corrections = self._step(est, t0, t1)
             pieces.append((t1, est, intervals, corrections))
             t0 = t1
-        bearing_times = {t for t, _ in self._streams.bearings}
         for t1, est, intervals, corrections in pieces:
             self._est = est
             self._t_c = t1
