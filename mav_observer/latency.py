@@ -124,23 +124,45 @@ class LatencyLearner:
         estimate ``x_m`` (m), ``a_mps`` (m/s) with the velocity ``v_mps`` (m/s, the paper's
         ``v``) and the bearing noise variance in use ``sig2_rad2`` (rad^2)."""
         n = len(x_m)
-        r2 = sum(c * c for c in x_m)
-        if r2 <= 0.0 or sig2_rad2 <= 0.0:
-            return
-        r = math.sqrt(r2)
-        yh = [c / r for c in x_m]
-        w = los_rate(yh, r, a_mps, v_mps)
-        y_along = sum(y[j] * yh[j] for j in range(n))
-        z = [y[j] - y_along * yh[j] for j in range(n)]
-        tau = self.tau_s
-        if sum((z[j] + tau * w[j]) ** 2 for j in range(n)) > GATE_SIGMA**2 * (n - 1) * sig2_rad2:
-            return  # an outlier (beyond the latency in use) says nothing of the latency
+        if n == 3:  # unrolled (the per-bearing path): the same arithmetic
+            x0, x1, x2 = x_m
+            r2 = x0 * x0 + x1 * x1 + x2 * x2
+            if r2 <= 0.0 or sig2_rad2 <= 0.0:
+                return
+            r = math.sqrt(r2)
+            u0, u1, u2 = x0 / r, x1 / r, x2 / r
+            d0, d1, d2 = v_mps[0] + a_mps[0], v_mps[1] + a_mps[1], v_mps[2] + a_mps[2]
+            along = d0 * u0 + d1 * u1 + d2 * u2
+            w = [(d0 - along * u0) / r, (d1 - along * u1) / r, (d2 - along * u2) / r]
+            y_along = y[0] * u0 + y[1] * u1 + y[2] * u2
+            z = [y[0] - y_along * u0, y[1] - y_along * u1, y[2] - y_along * u2]
+            tau = self.tau_s
+            e0, e1, e2 = z[0] + tau * w[0], z[1] + tau * w[1], z[2] + tau * w[2]
+            if e0**2 + e1**2 + e2**2 > GATE_SIGMA**2 * (n - 1) * sig2_rad2:
+                return  # an outlier (beyond the latency in use) says nothing of the latency
+        else:
+            r2 = sum(c * c for c in x_m)
+            if r2 <= 0.0 or sig2_rad2 <= 0.0:
+                return
+            r = math.sqrt(r2)
+            yh = [c / r for c in x_m]
+            w = los_rate(yh, r, a_mps, v_mps)
+            y_along = sum(y[j] * yh[j] for j in range(n))
+            z = [y[j] - y_along * yh[j] for j in range(n)]
+            tau = self.tau_s
+            miss2 = sum((z[j] + tau * w[j]) ** 2 for j in range(n))
+            if miss2 > GATE_SIGMA**2 * (n - 1) * sig2_rad2:
+                return  # an outlier (beyond the latency in use) says nothing of the latency
         rho = 1.0 if self.t_s is None else math.exp(-max(t_s - self.t_s, 0.0) / MEMORY_S)
         self.t_s = t_s
         if self.t0_s is None:
             self.t0_s = t_s
-        zw = sum(z[j] * w[j] for j in range(n))
-        ww = sum(c * c for c in w)
+        if n == 3:
+            zw = z[0] * w[0] + z[1] * w[1] + z[2] * w[2]
+            ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+        else:
+            zw = sum(z[j] * w[j] for j in range(n))
+            ww = sum(c * c for c in w)
         self.s_zw = rho * self.s_zw + zw
         self.s_ww = rho * self.s_ww + ww
         if self.b_t0_s is None or t_s < self.b_t0_s:

@@ -95,10 +95,16 @@ class VelocityNoise:
         c1 = 1.0 / (h1 * h2 * (h2 + h3))
         c2 = -1.0 / ((h1 + h2) * h2 * h3)
         c3 = 1.0 / ((h1 + h2 + h3) * (h2 + h3) * h3)
-        d2 = 0.0
-        for k in range(len(v3)):
-            d = c0 * v0[k] + c1 * v1[k] + c2 * v2[k] + c3 * v3[k]
-            d2 += d * d
+        if len(v3) == 3:  # unrolled (the per-sample path): the same arithmetic
+            e0 = c0 * v0[0] + c1 * v1[0] + c2 * v2[0] + c3 * v3[0]
+            e1 = c0 * v0[1] + c1 * v1[1] + c2 * v2[1] + c3 * v3[1]
+            e2 = c0 * v0[2] + c1 * v1[2] + c2 * v2[2] + c3 * v3[2]
+            d2 = 0.0 + e0 * e0 + e1 * e1 + e2 * e2
+        else:
+            d2 = 0.0
+            for k in range(len(v3)):
+                d = c0 * v0[k] + c1 * v1[k] + c2 * v2[k] + c3 * v3[k]
+                d2 += d * d
         sample = d2 / ((c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3) * len(v3))
         cap = max(CLIP * self.sigma_mps**2, CLIP_FLOOR)
         rho = math.exp(-h3 / self.memory_s) if self.memory_s > 0.0 else 0.0

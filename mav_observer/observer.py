@@ -109,6 +109,39 @@ DIAGNOSTICS_PERIOD_S = 0.5
 STATE_SCHEMA = 2
 
 
+def _stds(
+    pxx: list[float], p: list[float], x: list[float], rng: float, n: int
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """From the position covariance ``pxx`` (flat n x n, m^2) and the whole one ``p`` (flat
+    2n x 2n): the standard deviations of ``x`` (m) and ``a`` (m/s), read-only arrays, and the
+    variance along ``x`` of range ``rng`` (m^2; along ``x`` itself if ``rng`` is 0)."""
+    if n == 3:
+        x_std = np.array(
+            [math.sqrt(max(pxx[0], 0.0)), math.sqrt(max(pxx[4], 0.0)), math.sqrt(max(pxx[8], 0.0))]
+        )
+        a_std = np.array(
+            [math.sqrt(max(p[21], 0.0)), math.sqrt(max(p[28], 0.0)), math.sqrt(max(p[35], 0.0))]
+        )
+        if rng > 0.0:
+            u0, u1, u2 = x[0] / rng, x[1] / rng, x[2] / rng
+        else:
+            u0, u1, u2 = x
+        var_r = (
+            u0 * (pxx[0] * u0 + pxx[1] * u1 + pxx[2] * u2)
+            + u1 * (pxx[3] * u0 + pxx[4] * u1 + pxx[5] * u2)
+            + u2 * (pxx[6] * u0 + pxx[7] * u1 + pxx[8] * u2)
+        )
+    else:
+        d = 2 * n
+        x_std = np.array([math.sqrt(max(pxx[(n + 1) * i], 0.0)) for i in range(n)])
+        a_std = np.array([math.sqrt(max(p[(d + 1) * (n + i)], 0.0)) for i in range(n)])
+        u = [c / rng for c in x] if rng > 0.0 else x
+        var_r = sum(u[i] * sum(pxx[n * i + j] * u[j] for j in range(n)) for i in range(n))
+    x_std.setflags(write=False)
+    a_std.setflags(write=False)
+    return x_std, a_std, var_r
+
+
 def _add_outer(acc: list[float], y: list[float], w: float) -> None:
     """``acc += w y y^T`` in place (flat, row-major)."""
     if len(y) == 3:
@@ -196,7 +229,10 @@ class BiasObserver:
         """Covariance of ``[xhat, ahat]`` at the committed time ((2n, 2n), m and m/s), for an
         estimator that has one (``None`` for the paper's observer)."""
         p = self._est.output(self._streams).p
-        return None if p is None else p.copy()
+        if p is None:
+            return None
+        d = 2 * self.config.n
+        return np.array(p, dtype=float).reshape(d, d)
 
     def predicted_displacement_m(self, t0_s: float, t1_s: float) -> list[float] | None:
         """The integral of ``v`` (the paper's, ``-u``) from ``t0_s`` to ``t1_s`` (m) as the
@@ -501,18 +537,19 @@ class BiasObserver:
             if ev > 0.0 and out.p is not None:
                 # a sparse stream's trend continued: its uncertainty, and the bearing at
                 # this time (if it is one's) corrects the position published
-                pxx_pred = est.position_cov(dt, streams) + ev * np.eye(n)  # type: ignore[operator]
+                pred = np.array(est.position_cov(dt, streams)).reshape(n, n) + ev * np.eye(n)
                 tb, yb = streams.bearings[-1]
                 noise = est.noise(streams) if tb == t else None
                 if noise is not None:
-                    x_new, pxx_pred = riccati.position_update(
+                    x_new, pred = riccati.position_update(
                         np.array(xhat),
-                        pxx_pred,
+                        pred,
                         np.array(yb),
                         math.radians(noise.bearing_noise_deg) ** 2,
                         outlier_nis(n - 1) if cfg.robust else math.inf,
                     )
                     xhat = x_new.tolist()
+                pxx_pred = pred.ravel().tolist()
         rng = math.sqrt(discrete.dot(xhat, xhat))
         if committed:
             b_age = 0.0
@@ -549,16 +586,10 @@ class BiasObserver:
         nis = est.nis() if started else None
         p = out.p
         if p is not None and started:
-            pxx = pxx_pred if pxx_pred is not None else est.position_cov(dt, streams)
             # on lists: numpy's per-call cost is most of what small arrays cost
-            pl = pxx.tolist()  # type: ignore[union-attr]
-            x_std = np.array([math.sqrt(max(pl[i][i], 0.0)) for i in range(n)])
-            a_std = np.sqrt(np.maximum(p.diagonal()[n:], 0.0))
-            u = [c / rng for c in xhat] if rng > 0.0 else xhat
-            var_r = sum(u[i] * sum(pl[i][j] * u[j] for j in range(n)) for i in range(n))
+            pl = pxx_pred if pxx_pred is not None else est.position_cov(dt, streams)
+            x_std, a_std, var_r = _stds(pl, p, xhat, rng, n)  # type: ignore[arg-type]
             range_std = math.sqrt(max(var_r, 0.0))
-            x_std.setflags(write=False)
-            a_std.setflags(write=False)
         estimate = Estimate(
             t_s=t,
             x_m=x_out,

@@ -79,21 +79,27 @@ class Single:
         return self.walk_q if prm.learn_walk else prm.q_a
 
     def copy(self) -> Single:
-        """A copy that shares no list with this one."""
-        return Single(
-            [v[:] for v in self.x], [v[:] for v in self.a], [v[:] for v in self.p],
-            self.logw[:], self.r0, self.xp[:], self.ap[:], self.pp[:],
-            self.nis_avg, self.age_s, self.reseeds, self.noise_alpha, self.noise_beta,
-            self.outliers, self.bearings, self.inlier_avg, self.walk_q, self.walk_on,
-            self.walk_ll[:], [v[:] for v in self.walk_x], [v[:] for v in self.walk_a],
-            [v[:] for v in self.walk_p],
-        )  # fmt: skip
+        """A copy whose lists of filters are its own. The vectors and covariances inside are
+        shared: nothing changes one in place (every step makes new ones)."""
+        other = object.__new__(Single)
+        d = other.__dict__
+        d.update(self.__dict__)
+        d["x"], d["a"], d["p"], d["logw"] = self.x[:], self.a[:], self.p[:], self.logw[:]
+        d["walk_ll"], d["walk_x"] = self.walk_ll[:], self.walk_x[:]
+        d["walk_a"], d["walk_p"] = self.walk_a[:], self.walk_p[:]
+        return other
 
     def shift(self, dx_m: list[float]) -> None:
-        """Move every position (filters, observer, probes) by ``dx_m`` (m). In place."""
-        for v in (*self.x, self.xp, *self.walk_x):
-            for i in range(N):
-                v[i] += dx_m[i]
+        """Move every position (filters, observer, probes) by ``dx_m`` (m). In place (new
+        vectors: see :meth:`copy`)."""
+        d0, d1, d2 = dx_m
+
+        def moved(v: list[float]) -> list[float]:
+            return [v[0] + d0, v[1] + d1, v[2] + d2]
+
+        self.x = [moved(v) for v in self.x]
+        self.xp = moved(self.xp)
+        self.walk_x = [moved(v) for v in self.walk_x]
 
     def estimate(self) -> tuple[list[float], list[float], list[float]]:
         """The run's estimate ``(x, a, p)`` (new lists): the mixture's mean and covariance
@@ -360,14 +366,15 @@ def predict(s: Single, dx_m: list[float], h_s: float, prm: riccati.BankParams, q
     velocity noise). In place."""
     probes = prm.learn_walk and s.walk_on > 0.0
     q = s.walk_q if probes else prm.q_a
-    for i in range(len(s.x)):
-        s.x[i], s.a[i], s.p[i] = predict_one(s.x[i], s.a[i], s.p[i], dx_m, h_s, q_x, q)
+    xs, as_, ps = s.x, s.a, s.p
+    for i in range(len(xs)):
+        xs[i], as_[i], ps[i] = predict_one(xs[i], as_[i], ps[i], dx_m, h_s, q_x, q)
     s.xp, s.ap, s.pp = predict_one(s.xp, s.ap, s.pp, dx_m, h_s, q_x, q)
     if probes:
-        for k, qk in enumerate(walk_levels(q, prm)):
-            s.walk_x[k], s.walk_a[k], s.walk_p[k] = predict_one(
-                s.walk_x[k], s.walk_a[k], s.walk_p[k], dx_m, h_s, q_x, qk
-            )
+        lo, hi = walk_levels(q, prm)
+        wx, wa, wp = s.walk_x, s.walk_a, s.walk_p
+        wx[0], wa[0], wp[0] = predict_one(wx[0], wa[0], wp[0], dx_m, h_s, q_x, lo)
+        wx[1], wa[1], wp[1] = predict_one(wx[1], wa[1], wp[1], dx_m, h_s, q_x, hi)
     s.age_s += h_s
 
 
@@ -383,20 +390,27 @@ def update(s: Single, y: list[float], h_s: float, prm: riccati.BankParams) -> bo
     :func:`to_bank`), with this update applied."""
     g = prm.outlier_nis
     var = s.noise_var_rad2(prm)
-    f = len(s.x)
-    res = [update_one(s.x[i], s.a[i], s.p[i], y, var, True, 1.0, g) for i in range(f)]
-    for i, r in enumerate(res):
-        s.x[i], s.a[i], s.p[i] = r[0], r[1], r[2]
+    xs, as_, ps = s.x, s.a, s.p
+    f = len(xs)
+    if f == 1:
+        r = update_one(xs[0], as_[0], ps[0], y, var, True, 1.0, g)
+        xs[0], as_[0], ps[0] = r[0], r[1], r[2]
+        res = [r]
+    else:
+        res = [update_one(xs[i], as_[i], ps[i], y, var, True, 1.0, g) for i in range(f)]
+        for i, r in enumerate(res):
+            xs[i], as_[i], ps[i] = r[0], r[1], r[2]
     s.xp, s.ap, s.pp, _, _, w_obs, _ = update_one(s.xp, s.ap, s.pp, y, var, False, s.r0, g)
     probes = prm.learn_walk and s.walk_on > 0.0
     robust = w_obs < 1.0
     if probes:
-        rp = [
-            update_one(s.walk_x[k], s.walk_a[k], s.walk_p[k], y, var, True, 1.0, g) for k in (0, 1)
-        ]
-        for k in (0, 1):
-            s.walk_x[k], s.walk_a[k], s.walk_p[k] = rp[k][:3]
-        robust = robust or rp[0][5] < 1.0 or rp[1][5] < 1.0
+        wx, wa, wp = s.walk_x, s.walk_a, s.walk_p
+        r_lo = update_one(wx[0], wa[0], wp[0], y, var, True, 1.0, g)
+        r_hi = update_one(wx[1], wa[1], wp[1], y, var, True, 1.0, g)
+        wx[0], wa[0], wp[0] = r_lo[0], r_lo[1], r_lo[2]
+        wx[1], wa[1], wp[1] = r_hi[0], r_hi[1], r_hi[2]
+        rp = (r_lo, r_hi)
+        robust = robust or r_lo[5] < 1.0 or r_hi[5] < 1.0
     if prm.learn_walk:
         off = prm.walk_hold and not math.isfinite(prm.walk_hold_nats)
         if off or f != 1 or not s.age_s > prm.walk_warmup_s:

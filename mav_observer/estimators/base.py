@@ -16,7 +16,7 @@ sample times:
 
 Every step runs on :meth:`Estimator.copy` and is committed by replacing the original, so a
 step that raises changes nothing. Lists of floats cross the interface (the per-sample path
-is too short for numpy to pay); a covariance is a numpy array.
+is too short for numpy to pay), a covariance as a flat row-major list.
 
 A new estimator is one module implementing :class:`Estimator` and one line in
 :data:`mav_observer.estimators.REGISTRY`.
@@ -26,8 +26,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Any, ClassVar, Protocol
-
-import numpy as np
 
 from mav_observer.samples import NoiseLevels
 
@@ -52,12 +50,12 @@ class Inputs(Protocol):
 @dataclass(frozen=True)
 class Output:
     """An estimator's estimate at its current time: ``x_m`` (m) and ``a_mps`` (m/s) as lists,
-    ``p`` the covariance of ``[x, a]`` ((2n, 2n), m and m/s) or ``None`` when the estimator
-    has none."""
+    ``p`` the covariance of ``[x, a]`` ((2n, 2n), m and m/s; flat, row-major: the entry
+    ``(i, j)`` at ``2 n i + j``) or ``None`` when the estimator has none."""
 
     x_m: list[float]
     a_mps: list[float]
-    p: np.ndarray | None
+    p: list[float] | None
 
 
 class Estimator(Protocol):
@@ -111,9 +109,9 @@ class Estimator(Protocol):
         """The estimate at the current time (cached until the state changes)."""
         ...
 
-    def position_cov(self, dt_s: float, inputs: Inputs) -> np.ndarray | None:
-        """The covariance of ``x`` (m^2) predicted ``dt_s`` ahead with the velocity held, or
-        ``None`` without a covariance."""
+    def position_cov(self, dt_s: float, inputs: Inputs) -> list[float] | None:
+        """The covariance of ``x`` (m^2; ``(n, n)`` flat, row-major) predicted ``dt_s`` ahead
+        with the velocity held, or ``None`` without a covariance."""
         ...
 
     def cond(self) -> float:

@@ -84,7 +84,6 @@ class RiccatiEstimator:
             else None
         )
         self._out: Output | None = None  # the estimate, cached
-        self._p_flat: list[float] = []  # its covariance as a flat list (the float path)
         self._a_ref: list[float] | None = None  # the open-loop reference of a working copy
         self._prm: riccati.BankParams | None = None
         self._prm_held: riccati.BankParams | None = None
@@ -177,10 +176,13 @@ class RiccatiEstimator:
         prm = self.params()
         q_x = self.q_x_m2ps(dt_s, chord=inputs.chord_at(t_s))
         if self.one is not None:
-            single.predict(self.one, [c * h_s for c in v_mps], h_s, prm, q_x)
-        else:
-            bank = self.bank
-            riccati.bank_predict(bank, np.array([v_mps]) * h_s, h_s, prm, q_x)  # type: ignore[arg-type]
+            v0, v1, v2 = v_mps
+            single.predict(self.one, [v0 * h_s, v1 * h_s, v2 * h_s], h_s, prm, q_x)
+            self._out = None
+            a_ref = self._a_ref if self._a_ref is not None else self.output(inputs).a_mps
+            return [h_s * v0 + h_s * a_ref[0], h_s * v1 + h_s * a_ref[1], h_s * v2 + h_s * a_ref[2]]
+        bank = self.bank
+        riccati.bank_predict(bank, np.array([v_mps]) * h_s, h_s, prm, q_x)  # type: ignore[arg-type]
         self._out = None
         a_ref = self._a_ref if self._a_ref is not None else self.output(inputs).a_mps
         return [h_s * v_mps[j] + h_s * a_ref[j] for j in range(len(v_mps))]
@@ -217,7 +219,8 @@ class RiccatiEstimator:
                     var_x = p1[0] + p1[7] + p1[14]
                 else:
                     p = self.output(inputs).p
-                    var_x = sum(float(p[j, j]) for j in range(len(y)))  # type: ignore[index]
+                    d = 2 * len(y)
+                    var_x = sum(p[(d + 1) * j] for j in range(len(y)))  # type: ignore[index]
                 if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
                     lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))
             if tau != 0.0:  # the line of sight tau earlier, brought to t_s
@@ -242,58 +245,46 @@ class RiccatiEstimator:
         if self._out is None:
             one = self.one
             if one is not None:
-                n2 = 2 * single.N
-                x, a, p = one.estimate()
-                self._out = Output(x, a, np.array(p).reshape(n2, n2))
-                self._p_flat = p
+                self._out = Output(*one.estimate())
                 return self._out
             if self.bank is None:
                 n = self.config.n
-                return Output([0.0] * n, [0.0] * n, np.full((2 * n, 2 * n), np.inf))
+                return Output([0.0] * n, [0.0] * n, [math.inf] * (4 * n * n))
             x, a, p = riccati.bank_estimate(self.bank)
-            self._out = Output(x[0].tolist(), a[0].tolist(), p[0])
+            self._out = Output(x[0].tolist(), a[0].tolist(), p[0].ravel().tolist())
         return self._out
 
-    def position_cov(self, dt_s: float, inputs: Inputs) -> np.ndarray | None:
+    def position_cov(self, dt_s: float, inputs: Inputs) -> list[float]:
         n = self.config.n
-        p = self.output(inputs).p
-        if self.one is not None and dt_s > 0.0:  # on the floats (numpy's calls cost more)
-            f = self._p_flat
-            q = 0.0 if inputs.sparse else self.velocity_noise_mps() ** 2 * inputs.velocity_dt_s
-            return np.array(
-                [
-                    [
-                        f[6 * i + j]
-                        + dt_s * (f[6 * i + 3 + j] + f[18 + 6 * i + j])
-                        + dt_s * dt_s * f[21 + 6 * i + j]
-                        + (q * dt_s if i == j else 0.0)
-                        for j in range(n)
-                    ]
-                    for i in range(n)
-                ]
-            )
-        pxx = p[:n, :n]  # type: ignore[index]
-        if dt_s > 0.0:  # the prediction's uncertainty grows with the bias's
-            pxx = (
-                pxx
-                + dt_s * (p[:n, n:] + p[n:, :n])  # type: ignore[index]
-                + dt_s * dt_s * p[n:, n:]  # type: ignore[index]
-            )
-            if not inputs.sparse:  # (a sparse stream's is its trend's, the observer's)
-                q = self.velocity_noise_mps() ** 2 * inputs.velocity_dt_s * dt_s
-                pxx = pxx + q * np.eye(n)
-        return pxx
+        f = self.output(inputs).p
+        d = 2 * n
+        if dt_s <= 0.0:
+            if n == 3:
+                return [f[0], f[1], f[2], f[6], f[7], f[8], f[12], f[13], f[14]]  # type: ignore[index]
+            return [f[d * i + j] for i in range(n) for j in range(n)]  # type: ignore[index]
+        # the prediction's uncertainty grows with the bias's (and the velocity noise's, but
+        # for a sparse stream's, which is its trend's, the observer's)
+        q = 0.0 if inputs.sparse else self.velocity_noise_mps() ** 2 * inputs.velocity_dt_s
+        dd = dt_s * dt_s
+        return [
+            f[d * i + j]  # type: ignore[index]
+            + dt_s * (f[d * i + n + j] + f[d * (n + i) + j])  # type: ignore[index]
+            + dd * f[d * (n + i) + n + j]  # type: ignore[index]
+            + (q * dt_s if i == j else 0.0)
+            for i in range(n)
+            for j in range(n)
+        ]
 
     def cond(self) -> float:
         if not self.started:
             return 1.0
         n = self.config.n
-        p = self.output(None).p
-        if self.one is not None:
-            f = self._p_flat
-            pxx = [f[0], f[1], f[2], f[6], f[7], f[8], f[12], f[13], f[14]]
+        f = self.output(None).p
+        d = 2 * n
+        if n == 3:
+            pxx = [f[0], f[1], f[2], f[6], f[7], f[8], f[12], f[13], f[14]]  # type: ignore[index]
         else:
-            pxx = p[:n, :n].ravel().tolist()  # type: ignore[index]
+            pxx = [f[d * i + j] for i in range(n) for j in range(n)]  # type: ignore[index]
         ev = discrete.sym_eigvals(pxx, n)
         return ev[-1] / ev[0] if ev[0] > 0.0 else math.inf
 
