@@ -24,8 +24,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import pymap3d
-
 from mav_observer.errors import InvalidSampleError
 
 #: Where an origin came from, most trusted first.
@@ -58,8 +56,11 @@ class Origin:
     alt_m: float
     source: str
     #: (lat, lon, alt) at the origin and their gradients and Hessians in (n, e, d), from
-    #: pymap3d (:func:`_quadratic`)
-    _model: tuple[tuple[float, ...], ...] = field(init=False, repr=False, compare=False)
+    #: pymap3d (:func:`_quadratic`), made when first needed (:attr:`model`): an origin
+    #: no estimate is placed in costs nothing
+    _model: tuple[tuple[float, ...], ...] | None = field(
+        init=False, repr=False, compare=False, default=None
+    )
 
     def __post_init__(self) -> None:
         check_geodetic(self.lat_deg, self.lon_deg, self.alt_m, f"origin from {self.source}")
@@ -67,7 +68,15 @@ class Origin:
             raise InvalidSampleError(
                 f"origin source {self.source!r} is not one of {ORIGIN_SOURCES}"
             )
-        object.__setattr__(self, "_model", _quadratic(self.lat_deg, self.lon_deg, self.alt_m))
+
+    @property
+    def model(self) -> tuple[tuple[float, ...], ...]:
+        """The second-order expansion of pymap3d's conversion at the origin (made once)."""
+        m = self._model
+        if m is None:
+            m = _quadratic(self.lat_deg, self.lon_deg, self.alt_m)
+            object.__setattr__(self, "_model", m)
+        return m
 
     def to_dict(self) -> dict[str, float | str]:
         return {
@@ -103,6 +112,8 @@ def origin_from(
 
 
 def _exact(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tuple[float, ...]:
+    import pymap3d  # when first needed: its import is a tenth of a replay's start-up
+
     lat, lon, alt = pymap3d.ned2geodetic(ned[0], ned[1], ned[2], lat0, lon0, alt0)
     return float(lat), float(lon), float(alt)
 
@@ -160,7 +171,7 @@ def to_geodetic(origin: Origin, ned_m: tuple[float, float, float]) -> tuple[floa
     if n * n + e * e > LOCAL_RADIUS_M * LOCAL_RADIUS_M or abs(origin.lat_deg) > LOCAL_MAX_LAT_DEG:
         lat, lon, alt = _exact(origin.lat_deg, origin.lon_deg, origin.alt_m, ned_m)
         return lat, math.remainder(lon, 360.0), alt
-    f0, g0, g1, g2, h0, h1, h2 = origin._model
+    f0, g0, g1, g2, h0, h1, h2 = origin.model
     q = (0.5 * n * n, 0.5 * e * e, 0.5 * d * d, n * e, n * d, e * d)
     out = []
     for f, g, hh in ((f0[0], g0, h0), (f0[1], g1, h1), (f0[2], g2, h2)):
