@@ -187,3 +187,18 @@ def test_one_update_keeps_the_covariance_symmetric_and_shrinks_it(
     assert np.linalg.eigvalsh(p2).min() > -1e-9 * np.abs(p).max()
     assert np.linalg.eigvalsh(p - p2).min() > -1e-9 * np.abs(p).max()
     assert nis >= 0.0 and 0.0 < weight <= 1.0
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_the_float_mahalanobis_distance_is_numpys(seed: int) -> None:
+    """The merge's distance on the floats (a Cholesky factorisation) equals numpy's solve to
+    rounding, and says ``None`` for a matrix that is not positive definite."""
+    rng = np.random.default_rng(seed)
+    m = rng.normal(size=(6, 6))
+    a = m @ m.T + 1e-3 * np.eye(6)
+    d = rng.normal(size=6)
+    got = single.mahalanobis2(d.tolist(), a.ravel().tolist())
+    assert got == pytest.approx(float(d @ np.linalg.solve(a, d)), rel=1e-8)
+    a[0, 0] = -1.0
+    assert single.mahalanobis2(d.tolist(), a.ravel().tolist()) is None

@@ -210,6 +210,8 @@ class RiccatiEstimator:
             single_filter = one is not None and len(one.x) == 1
             if single_filter:  # the estimate is the filter's (read, not changed)
                 x, a = one.x[0], one.a[0]  # type: ignore[union-attr]
+            elif one is not None and not (lat is not None and age_s > LATENCY_AFTER_S):
+                x, a = one.mean()  # (the covariance is not needed: not made)
             else:
                 out = self.output(inputs)
                 x, a = out.x_m, out.a_mps
