@@ -63,6 +63,16 @@ WALK_LATENCY_WINDOW_S = 20.0
 WALK_LATENCY_STEP_S = 0.003
 
 
+#: For :meth:`RiccatiEstimator.position_cov` in three dimensions: per entry ``(i, j)`` of the
+#: position block, the flat 6x6 indices of ``P_xx``, ``P_xa``, ``P_ax``, ``P_aa`` and whether
+#: it is on the diagonal
+_POSITION_COV_3 = tuple(
+    (6 * i + j, 6 * i + 3 + j, 18 + 6 * i + j, 21 + 6 * i + j, i == j)
+    for i in range(3)
+    for j in range(3)
+)
+
+
 class RiccatiEstimator:
     """The filter bank (``estimator = "riccati"``, the default)."""
 
@@ -268,6 +278,12 @@ class RiccatiEstimator:
         # for a sparse stream's, which is its trend's, the observer's)
         q = 0.0 if inputs.sparse else self.velocity_noise_mps() ** 2 * inputs.velocity_dt_s
         dd = dt_s * dt_s
+        if n == 3:  # the same sums, their indices precomputed
+            qd = q * dt_s
+            return [
+                f[i] + dt_s * (f[j] + f[k]) + dd * f[m] + (qd if diag else 0.0)  # type: ignore[index]
+                for i, j, k, m, diag in _POSITION_COV_3
+            ]
         return [
             f[d * i + j]  # type: ignore[index]
             + dt_s * (f[d * i + n + j] + f[d * (n + i) + j])  # type: ignore[index]
