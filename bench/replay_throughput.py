@@ -6,8 +6,8 @@ Run: ``python bench/replay_throughput.py`` (a few minutes; ``--quick`` skips the
 Two figures per file, each a ratio against its baseline measured in the same run:
 
 * **whole processes** (issue 13's definition; start-up included): ``mav-observer replay LOG -o
-  out.jsonl`` against ``python -c`` of the plain loop below, each a fresh interpreter, runs
-  alternating, the best of ``--repeat``. Both run with byte-code caching on (an installed
+  out.jsonl`` (as ``python -m mav_observer`` from this checkout) against ``python -c`` of the
+  plain loop below, each a fresh interpreter, runs alternating, the best of ``--repeat``. Both run with byte-code caching on (an installed
   package has its byte code; this sandbox sets ``PYTHONDONTWRITEBYTECODE``, under which every
   one of our modules would be compiled at every start), after one untimed run of each. The
   start-up alone is reported too: ``python -c "import mav_observer.replay"`` against ``python
@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -149,8 +148,9 @@ def _wall(cmd: list[str]) -> float:
 
 
 def _cli() -> list[str]:
-    exe = shutil.which("mav-observer", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "mav_observer"]
+    """``mav-observer`` as ``python -m mav_observer`` run from this checkout (its own
+    package first on the path: the code measured is this checkout's)."""
+    return [sys.executable, "-m", "mav_observer"]
 
 
 def measure_process(path: Path, repeat: int) -> dict[str, object]:
