@@ -7,9 +7,10 @@ Two figures per file, each a ratio against its baseline measured in the same run
 
 * **whole processes** (issue 13's definition; start-up included): ``mav-observer replay LOG -o
   out.jsonl`` (as ``python -m mav_observer`` from this checkout) against ``python -c`` of the
-  plain loop below, each a fresh interpreter, runs alternating, the best of ``--repeat``. Both run with byte-code caching on (an installed
-  package has its byte code; this sandbox sets ``PYTHONDONTWRITEBYTECODE``, under which every
-  one of our modules would be compiled at every start), after one untimed run of each. The
+  plain loop below, each a fresh interpreter, runs alternating, the best of ``--repeat``.
+  Both run with byte-code caching on (an installed package has its byte code; this sandbox
+  sets ``PYTHONDONTWRITEBYTECODE``, under which every one of our modules would be compiled at
+  every start), after one untimed run of each. The
   start-up alone is reported too: ``python -c "import mav_observer.replay"`` against ``python
   -c "from pymavlink import mavutil"``, the floor of each side;
 * **in this process** (the work alone):
