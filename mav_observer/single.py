@@ -492,7 +492,7 @@ def _merge(s: Single, prm: riccati.BankParams) -> None:
     w = [math.exp(v) for v in s.logw]
     k = max(range(f), key=lambda i: (w[i], -i))  # the heaviest, the first of equals
     others = [i for i in range(f) if i != k]
-    dist = _distances(s, k, others) if f <= MERGE_FLOATS_MAX else None
+    dist = _distances(s, k, others, prm.merge_maha)
     if dist is None:  # the distances in one numpy call, as the bank computes them
         st = np.array([x + a for x, a in zip(s.x, s.a, strict=True)])
         pp = np.array(s.p).reshape(f, 2 * N, 2 * N)
@@ -515,32 +515,48 @@ def _merge(s: Single, prm: riccati.BankParams) -> None:
     _select(s, [i for i in range(f) if i not in close])
 
 
-#: Up to this many hypotheses, :func:`_merge`'s distances are computed on the floats (one
-#: 6x6 Cholesky factorisation per pair, 10 us against numpy's 22 us for the whole call)
-MERGE_FLOATS_MAX = 3
-
-
-def _distances(s: Single, k: int, others: list[int]) -> list[float] | None:
+def _distances(s: Single, k: int, others: list[int], bar: float) -> list[float] | None:
     """The squared Mahalanobis distances of the hypotheses ``others`` from hypothesis ``k``
-    under the sum of the two covariances, or ``None`` if a sum is not numerically positive
-    definite (numpy's solve then decides, as the bank's)."""
+    under the sum of the two covariances (one 6x6 Cholesky factorisation per pair: 10 us,
+    numpy's batched solve costs more up to the bank's seven), or ``None`` if a sum is not
+    numerically positive definite (numpy's solve then decides, as the bank's). A pair whose
+    distance is surely at least ``bar`` is given a lower bound over ``bar`` instead (only
+    whether a distance is under ``bar`` is used): ``|d|^2 / trace``, else the position
+    block's own distance (``d^T A^-1 d >= d_x^T A_xx^-1 d_x``); in the acquisition the
+    hypotheses are far apart in range and most pairs end there."""
     sk = s.x[k] + s.a[k]
     pk = s.p[k]
     out = []
     for i in others:
         d = [u - v for u, v in zip(s.x[i] + s.a[i], sk, strict=True)]
-        m = mahalanobis2(d, [u + v for u, v in zip(s.p[i], pk, strict=True)])
+        pi = s.p[i]
+        trace = sum(pi[j] + pk[j] for j in _DIAG)
+        d2 = sum(c * c for c in d)
+        if trace > 0.0 and d2 > bar * trace * (1.0 + 1e-9):
+            out.append(d2 / trace)
+            continue
+        a = [u + v for u, v in zip(pi, pk, strict=True)]
+        # the position block's distance, a lower bound too (of a 3x3 factorisation)
+        mx = mahalanobis2(d[:N], [a[j] for j in _XX], N)
+        if mx is not None and mx > bar * (1.0 + 1e-9):
+            out.append(mx)
+            continue
+        m = mahalanobis2(d, a)
         if m is None:
             return None
         out.append(m)
     return out
 
 
-def mahalanobis2(d: list[float], a: list[float]) -> float | None:
-    """``d^T a^-1 d`` for a symmetric positive definite 6x6 ``a`` (flat, row-major) by its
-    Cholesky factor (``a = L L^T``, ``z = L^-1 d``, the answer ``|z|^2``); ``None`` if ``a`` is
-    not positive definite to working precision."""
-    n = 2 * N
+#: the diagonal of a flat 6x6, and its position block (flat 3x3)
+_DIAG = tuple(7 * j for j in range(2 * N))
+_XX = tuple(2 * N * i + j for i in range(N) for j in range(N))
+
+
+def mahalanobis2(d: list[float], a: list[float], n: int = 2 * N) -> float | None:
+    """``d^T a^-1 d`` for a symmetric positive definite ``n x n`` ``a`` (flat, row-major) by
+    its Cholesky factor (``a = L L^T``, ``z = L^-1 d``, the answer ``|z|^2``); ``None`` if
+    ``a`` is not positive definite to working precision."""
     low = [0.0] * (n * n)
     z = [0.0] * n
     for j in range(n):

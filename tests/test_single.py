@@ -200,5 +200,9 @@ def test_the_float_mahalanobis_distance_is_numpys(seed: int) -> None:
     d = rng.normal(size=6)
     got = single.mahalanobis2(d.tolist(), a.ravel().tolist())
     assert got == pytest.approx(float(d @ np.linalg.solve(a, d)), rel=1e-8)
+    # the merge's shortcuts are lower bounds: the position block's distance, |d|^2 / trace
+    block = single.mahalanobis2(d[:3].tolist(), a[:3, :3].ravel().tolist(), 3)
+    assert block is not None and block <= got * (1 + 1e-9)
+    assert float(d @ d) / float(np.trace(a)) <= got * (1 + 1e-9)
     a[0, 0] = -1.0
     assert single.mahalanobis2(d.tolist(), a.ravel().tolist()) is None

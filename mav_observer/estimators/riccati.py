@@ -215,17 +215,18 @@ class RiccatiEstimator:
                 if self._prm_held is None:
                     self._prm_held = replace(prm, walk_hold=True)
                 prm = self._prm_held
-        if lat is not None or tau != 0.0:
+        learns = lat is not None and age_s > LATENCY_AFTER_S
+        if learns or tau != 0.0:  # (else nothing below is used: not computed)
             v = inputs.velocity_at(t_s)
             single_filter = one is not None and len(one.x) == 1
             if single_filter:  # the estimate is the filter's (read, not changed)
                 x, a = one.x[0], one.a[0]  # type: ignore[union-attr]
-            elif one is not None and not (lat is not None and age_s > LATENCY_AFTER_S):
+            elif one is not None and not learns:
                 x, a = one.mean()  # (the covariance is not needed: not made)
             else:
                 out = self.output(inputs)
                 x, a = out.x_m, out.a_mps
-            if lat is not None and age_s > LATENCY_AFTER_S:
+            if learns:
                 if single_filter:
                     p1 = one.p[0]  # type: ignore[union-attr]
                     var_x = p1[0] + p1[7] + p1[14]
@@ -234,7 +235,7 @@ class RiccatiEstimator:
                     d = 2 * len(y)
                     var_x = sum(p[(d + 1) * j] for j in range(len(y)))  # type: ignore[index]
                 if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
-                    lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))
+                    lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))  # type: ignore[union-attr]
             if tau != 0.0:  # the line of sight tau earlier, brought to t_s
                 y = advance(y, x, a, v, tau)
         if one is not None:
