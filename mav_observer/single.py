@@ -124,13 +124,24 @@ class Single:
 def _spread(
     w: list[float], states: list[list[float]], p: list[list[float]], mean: list[float]
 ) -> list[float]:
-    """``sum_k w_k (P_k + d_k d_k^T)``, ``d_k = s_k - mean``: a mixture's covariance (flat)."""
-    acc = [0.0] * (4 * N * N)
+    """``sum_k w_k (P_k + d_k d_k^T)``, ``d_k = s_k - mean``: a mixture's covariance (flat,
+    exactly symmetric: its upper triangle, mirrored)."""
+    acc = [0.0] * 21
     for wk, sk, pk in zip(w, states, p, strict=True):
         d = [u - v for u, v in zip(sk, mean, strict=True)]
-        outer = [wi * dj for wi in [wk * c for c in d] for dj in d]  # (i, j): w d_i d_j
-        acc = [c + wk * q + o for c, q, o in zip(acc, pk, outer, strict=True)]
-    return acc
+        dw = [wk * c for c in d]
+        outer = [a * b for a, b in zip(_ROW(dw), _COL(d), strict=True)]  # w d_i d_j, i <= j
+        acc = [c + wk * q + o for c, q, o in zip(acc, _UPPER(pk), outer, strict=True)]
+    return list(_MIRROR(acc))
+
+
+#: the upper triangle's rows and columns (in :data:`_UPPER`'s order), and the flat 6x6 from it
+_UPPER_IJ = tuple((i, j) for i in range(2 * N) for j in range(i, 2 * N))
+_ROW = operator.itemgetter(*(i for i, _ in _UPPER_IJ))
+_COL = operator.itemgetter(*(j for _, j in _UPPER_IJ))
+_MIRROR = operator.itemgetter(
+    *(_UPPER_IJ.index((min(i, j), max(i, j))) for i in range(2 * N) for j in range(2 * N))
+)
 
 
 def applies(bank: riccati.Bank) -> bool:

@@ -397,13 +397,16 @@ class ConnectionReader:
         if pending:
             return pending.popleft()
         conn = self._conn
-        sock = conn.port
-        if not select.select([sock], [], [], timeout_s)[0]:
-            return None
+        sock = conn.port  # (non-blocking: read first, wait only when nothing is queued)
         try:
             data, addr = sock.recvfrom(65535)
         except (BlockingIOError, InterruptedError, ConnectionRefusedError):
-            return None
+            if not select.select([sock], [], [], timeout_s)[0]:
+                return None
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError, ConnectionRefusedError):
+                return None
         conn.clients.add(addr)
         conn.clients_last_alive[addr] = time.time()
         if conn.first_byte:  # our own frames' version follows the peer's, as pymavlink's
