@@ -532,9 +532,10 @@ def _distances(s: Single, k: int, others: list[int], bar: float) -> list[float] 
     numpy's batched solve costs more up to the bank's seven), or ``None`` if a sum is not
     numerically positive definite (numpy's solve then decides, as the bank's). A pair whose
     distance is surely at least ``bar`` is given a lower bound over ``bar`` instead (only
-    whether a distance is under ``bar`` is used): ``|d|^2 / trace``, else the position
-    block's own distance (``d^T A^-1 d >= d_x^T A_xx^-1 d_x``); in the acquisition the
-    hypotheses are far apart in range and most pairs end there."""
+    whether a distance is under ``bar`` is used): ``|d|^2 / trace``, else the factorisation's
+    partial sum once it passes ``bar`` (``d^T A^-1 d >= d_x^T A_xx^-1 d_x``, the position
+    block first); in the acquisition the hypotheses are far apart in range and most pairs
+    end early."""
     sk = s.x[k] + s.a[k]
     pk = s.p[k]
     out = []
@@ -546,30 +547,29 @@ def _distances(s: Single, k: int, others: list[int], bar: float) -> list[float] 
         if trace > 0.0 and d2 > bar * trace * (1.0 + 1e-9):
             out.append(d2 / trace)
             continue
-        a = [u + v for u, v in zip(pi, pk, strict=True)]
-        # the position block's distance, a lower bound too (of a 3x3 factorisation)
-        mx = mahalanobis2(d[:N], [a[j] for j in _XX], N)
-        if mx is not None and mx > bar * (1.0 + 1e-9):
-            out.append(mx)
-            continue
-        m = mahalanobis2(d, a)
+        m = mahalanobis2(d, [u + v for u, v in zip(pi, pk, strict=True)], over=bar)
         if m is None:
             return None
         out.append(m)
     return out
 
 
-#: the diagonal of a flat 6x6, and its position block (flat 3x3)
+#: the diagonal of a flat 6x6
 _DIAG = tuple(7 * j for j in range(2 * N))
-_XX = tuple(2 * N * i + j for i in range(N) for j in range(N))
 
 
-def mahalanobis2(d: list[float], a: list[float], n: int = 2 * N) -> float | None:
+def mahalanobis2(
+    d: list[float], a: list[float], n: int = 2 * N, over: float = math.inf
+) -> float | None:
     """``d^T a^-1 d`` for a symmetric positive definite ``n x n`` ``a`` (flat, row-major) by
-    its Cholesky factor (``a = L L^T``, ``z = L^-1 d``, the answer ``|z|^2``); ``None`` if
-    ``a`` is not positive definite to working precision."""
+    its Cholesky factor (``a = L L^T``, ``z = L^-1 d``, the answer ``|z|^2``, accumulated
+    column by column); ``None`` if ``a`` is not positive definite to working precision. With
+    ``over``: once the partial sum passes ``over`` it is returned (a lower bound of the
+    answer: the first columns' sum is the leading block's own distance)."""
     low = [0.0] * (n * n)
     z = [0.0] * n
+    bar = over * (1.0 + 1e-9)
+    acc = 0.0
     for j in range(n):
         rj = n * j
         t = a[rj + j]
@@ -589,6 +589,9 @@ def mahalanobis2(d: list[float], a: list[float], n: int = 2 * N) -> float | None
         for k in range(j):
             t -= low[rj + k] * z[k]
         z[j] = t / ljj
+        acc += z[j] * z[j]
+        if acc > bar:
+            return acc
     return sum(c * c for c in z)
 
 

@@ -204,5 +204,9 @@ def test_the_float_mahalanobis_distance_is_numpys(seed: int) -> None:
     block = single.mahalanobis2(d[:3].tolist(), a[:3, :3].ravel().tolist(), 3)
     assert block is not None and block <= got * (1 + 1e-9)
     assert float(d @ d) / float(np.trace(a)) <= got * (1 + 1e-9)
+    # stopped once past a bar: over the bar, and not over the whole distance
+    part = single.mahalanobis2(d.tolist(), a.ravel().tolist(), over=0.5 * got)
+    assert part is not None and 0.5 * got < part <= got * (1 + 1e-9)
+    assert single.mahalanobis2(d.tolist(), a.ravel().tolist(), over=2.0 * got) == got
     a[0, 0] = -1.0
     assert single.mahalanobis2(d.tolist(), a.ravel().tolist()) is None
