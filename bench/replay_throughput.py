@@ -93,37 +93,34 @@ def run_replay(path: Path, sources: tuple[str, ...]) -> tuple[float, int, str]:
     return wall, 0 if s is None else s.messages_read, outcome
 
 
-def make_long_log() -> None:
-    if LONG.exists():
+def make_log(path: Path, what: str, emit_args: list[str]) -> None:
+    """Generate the emitter log ``path`` once (``python -m sim emit ARGS --tlog path``)."""
+    if path.exists():
         return
     CACHE.mkdir(parents=True, exist_ok=True)
-    print(f"generating {LONG} (an hour of emitter traffic) ...", flush=True)
+    print(f"generating {path} ({what}) ...", flush=True)
     subprocess.run(
-        [
-            sys.executable, "-m", "sim", "emit", "--scenario", "orbit", "--bearing", "gimbal",
-            "--duration", "3600", "--background-hz", "100", "--bearing-noise-deg", "0.5",
-            "--tlog", str(LONG),
-        ],
+        [sys.executable, "-m", "sim", "emit", *emit_args, "--tlog", str(path)],
         cwd=ROOT,
         check=True,
+        stdout=subprocess.DEVNULL,
+    )
+
+
+def make_long_log() -> None:
+    make_log(
+        LONG, "an hour of emitter traffic",
+        ["--scenario", "orbit", "--bearing", "gimbal", "--duration", "3600",
+         "--background-hz", "100", "--bearing-noise-deg", "0.5"],
     )  # fmt: skip
 
 
 def make_fig8_log() -> None:
-    if FIG8.exists():
-        return
-    CACHE.mkdir(parents=True, exist_ok=True)
-    print(f"generating {FIG8} (a dense figure-8) ...", flush=True)
-    subprocess.run(
-        [
-            sys.executable, "-m", "sim", "emit", "--scenario", "figure8", "--bearing", "gimbal",
-            "--duration", "240", "--bearing-hz", "25", "--position-hz", "25",
-            "--attitude-hz", "50", "--bearing-noise-deg", "0.5", "--seed", "3",
-            "--tlog", str(FIG8),
-        ],
-        cwd=ROOT,
-        check=True,
-        stdout=subprocess.DEVNULL,
+    make_log(
+        FIG8, "a dense figure-8",
+        ["--scenario", "figure8", "--bearing", "gimbal", "--duration", "240",
+         "--bearing-hz", "25", "--position-hz", "25", "--attitude-hz", "50",
+         "--bearing-noise-deg", "0.5", "--seed", "3"],
     )  # fmt: skip
 
 
