@@ -105,9 +105,7 @@ class Single:
         """The run's ``(x, a)`` (new lists): the mixture's mean, as :meth:`estimate`'s."""
         if len(self.x) == 1:
             return self.x[0][:], self.a[0][:]
-        w = [math.exp(v) for v in self.logw]
-        states = [x + a for x, a in zip(self.x, self.a, strict=True)]
-        mean = [sum(wi * s[j] for wi, s in zip(w, states, strict=True)) for j in range(2 * N)]
+        _, _, mean = self._weighted()
         return mean[:N], mean[N:]
 
     def estimate(self) -> tuple[list[float], list[float], list[float]]:
@@ -115,10 +113,15 @@ class Single:
         (spread of the hypotheses included), as :func:`~mav_observer.riccati.bank_estimate`."""
         if len(self.x) == 1:
             return self.x[0][:], self.a[0][:], self.p[0][:]
+        w, states, mean = self._weighted()
+        return mean[:N], mean[N:], _spread(w, states, self.p, mean)
+
+    def _weighted(self) -> tuple[list[float], list[list[float]], list[float]]:
+        """The hypotheses' weights, their states ``[x, a]`` and the mixture's mean state."""
         w = [math.exp(v) for v in self.logw]
         states = [x + a for x, a in zip(self.x, self.a, strict=True)]
         mean = [sum(wi * s[j] for wi, s in zip(w, states, strict=True)) for j in range(2 * N)]
-        return mean[:N], mean[N:], _spread(w, states, self.p, mean)
+        return w, states, mean
 
 
 def _spread(
@@ -596,9 +599,10 @@ def mahalanobis2(
 
 
 def _start_probes(s: Single) -> None:
-    s.walk_x = [s.x[0][:], s.x[0][:]]
-    s.walk_a = [s.a[0][:], s.a[0][:]]
-    s.walk_p = [s.p[0][:], s.p[0][:]]
+    """The probes start as the filter (its vectors shared: no step changes one in place)."""
+    s.walk_x = [s.x[0], s.x[0]]
+    s.walk_a = [s.a[0], s.a[0]]
+    s.walk_p = [s.p[0], s.p[0]]
     s.walk_ll = [0.0, 0.0]
 
 

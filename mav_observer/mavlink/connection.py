@@ -259,13 +259,10 @@ class ConnectionReader:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, UDP_RCVBUF_BYTES)
             # one datagram never continues in the next: parse each on its own
             self._conn.recv_msg = functools.partial(datagram_recv_msg, self._conn)
-            if self.signing_key is None and getattr(self._conn, "udp_server", False):
-                if self._fast is None:
-                    self._fast = FastDecoder()
-            else:
-                self._fast = None
-        else:
-            self._fast = None
+        # the datagram path: an unsigned UDP input (pymavlink checks signatures)
+        server = getattr(self._conn, "udp_server", False)
+        fast = sock is not None and server and self.signing_key is None
+        self._fast = (self._fast or FastDecoder()) if fast else None
         self._pending.clear()
 
     def _udp_socket(self) -> socket.socket | None:
