@@ -31,6 +31,9 @@ def test_a_short_end_to_end_run_lands_near_the_bound(case: str, tmp_path: Path) 
     # (with the vehicle moved on by the velocity as measured, 2.2 m/s off: 0.13 m and 21 %)
     assert m["geo_h_med_m"] < 0.15, m
     assert m["geo_h_within_2sd"] > 0.8, m
+    # "after convergence" as the product declares it: from its first converged estimate on
+    assert m["geo_conv_n"] > 100, m
+    assert m["geo_h_within_2sd_conv"] > 0.8, m
 
 
 def test_the_settings_file_of_a_case_is_what_the_product_reads(tmp_path: Path) -> None:

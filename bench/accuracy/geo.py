@@ -9,7 +9,8 @@ in the ``.json`` beside it. The log is replayed with the default settings (or th
 ``TrackerConfig.gimbal_angles``) and every record over the last third of its estimates is
 scored: the horizontal distance of ``target_lat_deg, target_lon_deg`` from the ROI (pymap3d),
 its median, the vertical error's median, and the share of records whose horizontal error is
-within twice their ``target_h_std_m``.
+within twice their ``target_h_std_m``; and how many estimates say ``converged``, with that share
+over every estimate from the first of them on ("after convergence" as the product declares it).
 """
 
 from __future__ import annotations
@@ -67,6 +68,8 @@ def score_log(
     t = np.array([r["t_boot_s"] for r in recs])
     last = t >= (t[0] + (t[-1] - t[0]) * 2.0 / 3.0 if from_s is None else from_s)
     sel = [r for r, k in zip(recs, last, strict=True) if k]
+    first = next((i for i, r in enumerate(recs) if r["status"] == "converged"), None)
+    after = [] if first is None else recs[first:]
     origin = None
     for ts in summary.targets.values():
         if ts.final is not None and ts.final.origin is not None:
@@ -75,6 +78,9 @@ def score_log(
         "records": len(recs),
         "scored": len(sel),
         **map_errors(sel, *roi),
+        "converged_n": sum(r["status"] == "converged" for r in recs),
+        "after_convergence_n": len(after),
+        "within_2sd_after_convergence": map_errors(after, *roi)["within_2sd"] if after else None,
         "origin": origin,
         "events": dict(summary.events),
     }
@@ -102,16 +108,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"no such log: {log}")
     meta = json.loads(log.with_suffix(".json").read_text())
     print("| gimbal_angles | records scored | horizontal error, median | vertical, median "
-          "| within 2 target_h_std_m | target_h_std_m, median | origin from |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|")
+          "| within 2 target_h_std_m | target_h_std_m, median | estimates `converged` "
+          "| within 2 sigma after convergence | origin from |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|")
     for ga in args.gimbal_angles:
         r = score_log(log, meta, TrackerConfig(gimbal_angles=ga), args.from_s)
         if not r["records"]:
-            print(f"| {ga} | 0 | - | - | - | - | - |")
+            print(f"| {ga} | 0 | - | - | - | - | - | - | - |")
             continue
+        w = r["within_2sd_after_convergence"]
+        after = "never converged" if w is None else f"{100 * w:.0f} % of {r['after_convergence_n']}"
         print(
             f"| {ga} | {r['scored']} | {r['h_median_m']:.2f} m | {r['v_median_m']:.2f} m "
-            f"| {100 * r['within_2sd']:.0f} % | {r['h_std_median_m']:.2f} m | {r['origin']} |"
+            f"| {100 * r['within_2sd']:.0f} % | {r['h_std_median_m']:.2f} m "
+            f"| {r['converged_n']} of {r['records']} | {after} | {r['origin']} |"
         )
     return 0
 
