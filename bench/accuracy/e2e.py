@@ -609,7 +609,9 @@ def _pooled_share(runs: list[dict[str, Any]]) -> float:
     n = sum(r.get("geo_conv_n", 0) for r in runs)
     if not n:
         return math.nan
-    return sum(r["geo_h_within_2sd_conv"] * r["geo_conv_n"] for r in runs if r.get("geo_conv_n")) / n
+    return (
+        sum(r["geo_h_within_2sd_conv"] * r["geo_conv_n"] for r in runs if r.get("geo_conv_n")) / n
+    )
 
 
 def run_cases(
