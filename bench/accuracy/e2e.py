@@ -453,9 +453,7 @@ def _geodetic_errors(
     if not recs:
         return {}
     err = geo.map_errors(recs, *_truth_ll(recs, truth))
-    first = next((i for i, r in enumerate(records) if r["status"] == "converged"), None)
-    after = [] if first is None else records[first:]
-    after = [r for r in after if r.get("target_lat_deg") is not None]
+    after = [r for r in geo.after_convergence(records) if r.get("target_lat_deg") is not None]
     conv = geo.map_errors(after, *_truth_ll(after, truth))["within_2sd"] if after else math.nan
     return {
         "geo_h_med_m": err["h_median_m"],

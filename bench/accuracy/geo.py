@@ -52,6 +52,13 @@ def map_errors(recs: list[dict[str, Any]], lat_t: Any, lon_t: Any, alt_t: Any) -
     }
 
 
+def after_convergence(recs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The records from the first whose ``status`` is ``converged`` on (empty if none is):
+    "after convergence" as the product declares it."""
+    first = next((i for i, r in enumerate(recs) if r["status"] == "converged"), None)
+    return [] if first is None else recs[first:]
+
+
 def score_log(
     log: Path, meta: dict[str, Any], tracker: TrackerConfig, from_s: float | None = None
 ) -> dict[str, Any]:
@@ -68,8 +75,7 @@ def score_log(
     t = np.array([r["t_boot_s"] for r in recs])
     last = t >= (t[0] + (t[-1] - t[0]) * 2.0 / 3.0 if from_s is None else from_s)
     sel = [r for r, k in zip(recs, last, strict=True) if k]
-    first = next((i for i, r in enumerate(recs) if r["status"] == "converged"), None)
-    after = [] if first is None else recs[first:]
+    after = after_convergence(recs)
     origin = None
     for ts in summary.targets.values():
         if ts.final is not None and ts.final.origin is not None:
