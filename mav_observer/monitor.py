@@ -31,8 +31,10 @@ data since the observer started):
 2. ``not observable``: window full and excitation below ``excitation_min`` (below twice it
    while already ``not observable``: hysteresis). Range and the bias along the bearing are
    not observable; the estimate drifts with any error of the bias along the line of sight.
-3. ``converged``: observable (not stale, not "not observable") for at least ``window_s``
-   and ``correction_rel <= converged_tol`` (``<= 2 converged_tol`` while already converged).
+3. ``converged``: observable (not stale, not "not observable") for at least ``window_s``,
+   ``correction_rel <= converged_tol`` (``<= 2 converged_tol`` while already converged) and
+   the estimator settled (what it learns, a gimbal's latency, no longer moving the estimate:
+   ``Estimator.settled``).
 4. ``converging``: otherwise.
 """
 
@@ -271,8 +273,10 @@ def next_status(
     covered_s: float,
     correction_rel: float,
     th: MonitorThresholds,
+    settled: bool = True,
 ) -> StatusMemory:
-    """Apply the status rules; returns the new memory, whose ``status`` is the answer."""
+    """Apply the status rules; returns the new memory, whose ``status`` is the answer
+    (``settled``: the estimator's, rule 3)."""
     if (
         not started
         or bearing_age_s is None
@@ -288,7 +292,7 @@ def next_status(
     tol = th.converged_tol * (2.0 if memory.status is Status.CONVERGED else 1.0)
     status = (
         Status.CONVERGED
-        if t_s - since >= th.window_s and correction_rel <= tol
+        if settled and t_s - since >= th.window_s and correction_rel <= tol
         else Status.CONVERGING
     )
     if status is memory.status and since == memory.observable_since_s:

@@ -576,6 +576,7 @@ class BiasObserver:
             covered_s=covered,
             correction_rel=corr,
             th=self._thresholds,
+            settled=est.settled,
         )
         corrected = started and b_age is not None and b_age <= cfg.max_bearing_age_s
         x_out = np.array(xhat)

@@ -19,7 +19,7 @@ from mav_observer import (
 )
 from mav_observer.estimators import REGISTRY, Inputs, Output
 from mav_observer.estimators.base import Estimator
-from mav_observer.samples import NoiseLevels
+from mav_observer.samples import NoiseLevels, Status
 from sim import scenarios
 from sim.stream import generate
 
@@ -56,7 +56,7 @@ def test_every_registered_estimator_implements_the_interface(name: str) -> None:
     est = REGISTRY[name](ObserverConfig(estimator=name))
     for method in _METHODS:
         assert callable(getattr(est, method)), method
-    for attr in ("min_interval_s", "started", "reacquisitions", "name", "continuous"):
+    for attr in ("min_interval_s", "started", "settled", "reacquisitions", "name", "continuous"):
         getattr(est, attr)
     assert est.name == name
     assert not est.started
@@ -115,6 +115,9 @@ class DeadReckoning:
     @property
     def started(self) -> bool:
         return self._started
+
+    #: it learns nothing that could move its estimate later
+    settled = True
 
     @property
     def reacquisitions(self) -> int:
@@ -204,3 +207,30 @@ def test_the_first_estimate_after_the_start_is_the_estimators_not_a_stale_one() 
     assert obs.started
     assert est.range_m == pytest.approx(20.0, rel=1e-6)
     assert est.x_m.tolist() == pytest.approx([12.0, 0.0, 16.0], rel=1e-6)
+
+
+def test_with_its_latency_learnt_nothing_is_converged_before_the_latency_settles() -> None:
+    """The riccati estimator with ``bearing_latency_s = "auto"`` is not ``settled`` until its
+    latency has settled once, and no estimate is ``converged`` before; the flag is kept
+    across a restart. Told a latency, it is settled from the start (and converges)."""
+    obs = BiasObserver(ObserverConfig())
+    _feed(obs, duration_s=50.0)
+    assert not obs.estimator.settled
+    assert obs.status is Status.CONVERGING
+    told = BiasObserver(ObserverConfig(bearing_latency_s=0.0))
+    assert told.estimator.settled
+    _feed(told, duration_s=50.0)
+    assert told.status is Status.CONVERGED  # (from 27 s on)
+    later = BiasObserver(ObserverConfig())
+    _feed(later, duration_s=90.0)
+    assert later.estimator.settled and later.status is Status.CONVERGED  # (from 60 s on)
+    d = json.loads(json.dumps(obs.to_dict()))
+    assert d["latency_settled"] is False
+    assert not BiasObserver.from_dict(d).estimator.settled
+    d["latency_settled"] = True
+    assert BiasObserver.from_dict(d).estimator.settled
+    del d["latency_settled"]  # a state saved before the flag: a started estimator keeps its status
+    assert BiasObserver.from_dict(d).estimator.settled
+    d["latency_settled"] = "yes"
+    with pytest.raises(StateError, match="latency_settled"):
+        BiasObserver.from_dict(d)

@@ -141,3 +141,13 @@ def test_status_converged_needs_a_window_of_observability_and_small_corrections(
     assert m.status is Status.CONVERGED
     assert _status(m, t_s=61.0, correction_rel=0.03).status is Status.CONVERGED  # hysteresis
     assert _status(m, t_s=61.0, correction_rel=0.05).status is Status.CONVERGING
+
+
+def test_status_converged_needs_the_estimator_settled() -> None:
+    """What the estimator still learns (a gimbal's latency) holds ``converged`` back, and
+    leaving it unsettled leaves ``converged``."""
+    m = _status(StatusMemory(Status.CONVERGING, 0.0), t_s=60.0, settled=False)
+    assert m.status is Status.CONVERGING and m.observable_since_s == 0.0
+    m = _status(m, t_s=61.0, settled=True)
+    assert m.status is Status.CONVERGED
+    assert _status(m, t_s=62.0, settled=False).status is Status.CONVERGING

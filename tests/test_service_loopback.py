@@ -418,7 +418,8 @@ def test_mavlink_out_sends_the_converged_target_back_as_landing_target_and_statu
     try:
         with service(mav_port, z_port, tmp_path / "svc.log",
                      "--mavlink-out", f"udpout:127.0.0.1:{out_port}"):  # fmt: skip
-            th, _ = emit(mav_port, duration_s=60.0, speed=10.0)
+            # (converged from 60 s on, once the gimbal's latency learnt has settled)
+            th, _ = emit(mav_port, duration_s=90.0, speed=10.0)
             deadline = time.monotonic() + 30.0
             while time.monotonic() < deadline and (
                 len(got["LANDING_TARGET"]) < 5 or not got["STATUSTEXT"]

@@ -78,6 +78,13 @@ class Estimator(Protocol):
         """True once :meth:`start` has run."""
         ...
 
+    @property
+    def settled(self) -> bool:
+        """True once nothing the estimator learns still moves its estimate for long (the
+        bearings' latency, when learnt, has settled once): until then the monitor calls no
+        estimate ``converged``."""
+        ...
+
     def start(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         """Begin at ``t_s`` from the bearing ``y`` (unit vector) of time ``t_s`` or before."""
         ...

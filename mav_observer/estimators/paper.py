@@ -68,6 +68,10 @@ class PaperEstimator:
     def started(self) -> bool:
         return self._started
 
+    @property
+    def settled(self) -> bool:
+        return True  # it learns nothing beside its state
+
     def start(self, t_s: float, y: list[float], inputs: Inputs) -> None:
         cfg = self.config
         if cfg.initial_range_m is not None:
