@@ -234,3 +234,26 @@ def test_with_its_latency_learnt_nothing_is_converged_before_the_latency_settles
     d["latency_settled"] = "yes"
     with pytest.raises(StateError, match="latency_settled"):
         BiasObserver.from_dict(d)
+
+
+def test_an_estimate_never_certain_enough_to_learn_its_latency_is_settled_90_s_on() -> None:
+    """8 deg bearings at 2 Hz on a slow orbit: the estimate never comes within 5 % of its
+    range, so its latency never starts learning; 90 s after the bank's (last) seeding the
+    estimator counts as settled (a lag's error is within its sigma), so the status can still
+    say converged once the corrections are small. Before that, it is not settled."""
+    from sim.stream import Noise
+
+    def run(duration_s: float) -> BiasObserver:
+        obs = BiasObserver(ObserverConfig())
+        sc = scenarios.orbit(radius_m=5.0, lap_s=200.0, duration_s=duration_s)
+        stream = generate(sc, noise=Noise(bearing_sigma_deg=8.0), bearing_rate_hz=2.0)
+        for ev in stream.events():
+            if isinstance(ev, BearingSample):
+                obs.update_bearing(ev)
+            else:
+                obs.update_velocity(ev)
+        return obs
+
+    early, late = run(60.0), run(200.0)
+    assert early.estimator.latency.t0_s is None and not early.estimator.settled
+    assert late.estimator.latency.t0_s is None and late.estimator.settled

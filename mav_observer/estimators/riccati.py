@@ -150,9 +150,12 @@ class RiccatiEstimator:
     @property
     def settled(self) -> bool:
         """True once the latency learnt has settled (:class:`~mav_observer.latency.Settling`:
-        learnt for 30 s and moved by under 3 ms over 20 s), and stays so; always with a latency
-        told. Before, an estimate can look converged with a gimbal's lag in it: the e2e case
-        ``gimbal_lag`` was 0.4 m off at a sigma of 0.05 m for its first 30 s "converged"."""
+        learnt for 30 s and moved by under 3 ms over 20 s), or has not started learning 90 s
+        after the bank's seeding (:data:`WALK_HOLD_MAX_S`: an estimate never certain enough to
+        learn it from, within 5 % of its range, whose sigma is larger than a lag's error), and
+        stays so; always with a latency told. Before, an estimate can look converged with a
+        gimbal's lag in it: the e2e case ``gimbal_lag`` was 0.4 m off at a sigma of 0.05 m for
+        its first 30 s "converged"."""
         return self.latency_settled
 
     def _set_bank(self, bank: riccati.Bank) -> None:
@@ -217,7 +220,8 @@ class RiccatiEstimator:
         if lat is not None:
             learning_s = lat.learning_for_s(t_s)
             settled = self.settling.update(t_s, lat.tau_s, learning_s)
-            if settled:
+            if settled or (learning_s == 0.0 and age_s >= WALK_HOLD_MAX_S):
+                # (or never learning, the estimate too uncertain for a lag to show, 90 s on)
                 self.latency_settled = True
         if prm.learn_walk and lat is not None:
             if learning_s < WALK_AFTER_LATENCY_S and age_s < WALK_HOLD_MAX_S:
