@@ -223,15 +223,15 @@ class RiccatiEstimator:
             if settled or (learning_s == 0.0 and age_s >= WALK_HOLD_MAX_S):
                 # (or never learning, the estimate too uncertain for a lag to show, 90 s on)
                 self.latency_settled = True
-        if prm.learn_walk and lat is not None:
-            if learning_s < WALK_AFTER_LATENCY_S and age_s < WALK_HOLD_MAX_S:
-                if self._prm_off is None:
-                    self._prm_off = replace(prm, walk_hold=True, walk_hold_nats=math.inf)
-                prm = self._prm_off
-            elif not settled:
-                if self._prm_held is None:
-                    self._prm_held = replace(prm, walk_hold=True)
-                prm = self._prm_held
+            if prm.learn_walk:  # the walk waits for the latency (the module's constants)
+                if learning_s < WALK_AFTER_LATENCY_S and age_s < WALK_HOLD_MAX_S:
+                    if self._prm_off is None:
+                        self._prm_off = replace(prm, walk_hold=True, walk_hold_nats=math.inf)
+                    prm = self._prm_off
+                elif not settled:
+                    if self._prm_held is None:
+                        self._prm_held = replace(prm, walk_hold=True)
+                    prm = self._prm_held
         learns = lat is not None and age_s > LATENCY_AFTER_S
         if learns or tau != 0.0:  # (else nothing below is used: not computed)
             v = inputs.velocity_at(t_s)
