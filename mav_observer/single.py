@@ -110,11 +110,41 @@ class Single:
 
     def estimate(self) -> tuple[list[float], list[float], list[float]]:
         """The run's estimate ``(x, a, p)`` (new lists): the mixture's mean and covariance
-        (spread of the hypotheses included), as :func:`~mav_observer.riccati.bank_estimate`."""
+        (spread of the hypotheses included), as :func:`~mav_observer.riccati.bank_estimate`;
+        with one filter whose bias-walk probes run, its mean and the covariance over the
+        walk's three levels (:meth:`walk_mixture`)."""
         if len(self.x) == 1:
+            if self.walk_on > 0.0:
+                return self.x[0][:], self.a[0][:], self.walk_mixture()
             return self.x[0][:], self.a[0][:], self.p[0][:]
         w, states, mean = self._weighted()
         return mean[:N], mean[N:], _spread(w, states, self.p, mean)
+
+    def walk_mixture(self) -> list[float]:
+        """The covariance of the one filter's ``[x, a]`` over the bias walk's three levels
+        (flat 6x6): the filter and its two probes (:func:`_walk_step`), weighted by their
+        likelihood over the walk's memory (1 and ``exp(walk_ll)``, normalised), each with
+        its spread about the filter's mean (which stays the estimate), as
+        :func:`~mav_observer.riccati.walk_mixture`."""
+        lo, hi = self.walk_ll
+        top = max(0.0, lo, hi)
+        w0, w1, w2 = math.exp(-top), math.exp(lo - top), math.exp(hi - top)
+        total = w0 + w1 + w2
+        w0, w1, w2 = w0 / total, w1 / total, w2 / total
+        s0 = self.x[0] + self.a[0]
+        (x1, x2), (a1, a2) = self.walk_x, self.walk_a
+        d1 = [u - v for u, v in zip(x1 + a1, s0, strict=True)]
+        d2 = [u - v for u, v in zip(x2 + a2, s0, strict=True)]
+        r1, r2 = _ROW([w1 * c for c in d1]), _ROW([w2 * c for c in d2])
+        c1, c2 = _COL(d1), _COL(d2)
+        acc = [
+            w0 * p0 + w1 * p1 + w2 * p2 + u1 * v1 + u2 * v2
+            for p0, p1, p2, u1, v1, u2, v2 in zip(
+                _UPPER(self.p[0]), _UPPER(self.walk_p[0]), _UPPER(self.walk_p[1]),
+                r1, c1, r2, c2, strict=True,
+            )
+        ]  # fmt: skip
+        return list(_MIRROR(acc))
 
     def _weighted(self) -> tuple[list[float], list[list[float]], list[float]]:
         """The hypotheses' weights, their states ``[x, a]`` and the mixture's mean state."""

@@ -501,3 +501,60 @@ def test_a_bearing_applied_to_a_position_alone_moves_it_across_the_bearing_only(
     assert np.linalg.norm(x3 - x_t) < 0.05
     x4, _ = riccati.position_update(x_t, tight, far, sig2, math.inf)
     assert np.linalg.norm(x4 - x_t) > 1.0
+
+
+def test_the_walk_mixture_weighs_the_filter_and_its_probes_by_their_lead() -> None:
+    """:func:`riccati.walk_mixture`: no probe running, the covariance is the filter's own
+    (the same array); a probe leading by far, its covariance plus its offset from the
+    filter's mean squared; no lead either way, the three weigh a third each; the estimate
+    itself stays the filter's."""
+    bank, _, _ = _walking_bias_run(3.3e-4, 36, 2, duration_s=60.0)
+    assert np.all(bank.walk_on == 1.0)
+    x, a, p = bank.x.copy(), bank.a.copy(), bank.p.copy()
+    s0 = np.concatenate((x, a), axis=-1)
+    sp = np.concatenate((bank.walk_x, bank.walk_a), axis=-1)
+    d = sp - s0[:, None]
+    probe = bank.walk_p + d[..., :, None] * d[..., None, :]  # (R, 2, 6, 6)
+    bank.walk_ll[:] = [[-500.0, 500.0], [0.0, 0.0]]
+    got = riccati.walk_mixture(bank, x, a, p)
+    assert np.allclose(got[0], probe[0, 1], rtol=1e-9, atol=1e-15)
+    assert np.allclose(got[1], (p[1] + probe[1, 0] + probe[1, 1]) / 3.0, rtol=1e-9)
+    xe, ae, pe = riccati.bank_estimate(bank)
+    assert np.array_equal(xe, x) and np.array_equal(ae, a) and np.allclose(pe, got)
+    bank.walk_on[:] = 0.0
+    assert riccati.walk_mixture(bank, x, a, p) is p
+
+
+def test_weighing_the_walk_levels_makes_a_wandering_bias_honest() -> None:
+    """A bias wandering as a 0.1 m/s Gauss-Markov error over 60 s does short-term (0.018
+    m/s/sqrt(s)), its walk learnt: over the last third of 4 minutes, sampled each second, the
+    published covariance (the levels weighed) puts the position's normalised error squared
+    per axis nearer 1 than the filter's own covariance, which is over-confident with the
+    level in use often one step below the truth."""
+    rng = np.random.default_rng(37)
+    runs, dt, duration = 12, 0.05, 240.0
+    sc = scenarios.orbit(duration_s=duration)
+    t = np.arange(0.0, duration + 1e-9, dt)
+    xs, v = sc.x(t), sc.v(t)
+    walk = np.cumsum(rng.normal(0.0, math.sqrt(3.3e-4 * dt), (runs, len(t), 3)), axis=1)
+    xt = xs[None] + np.cumsum(walk * dt, axis=1)
+    y_true = xt / np.linalg.norm(xt, axis=-1, keepdims=True)
+    y = perturb_bearings(y_true.reshape(-1, 3), math.radians(0.5), rng).reshape(runs, -1, 3)
+    prm = riccati.BankParams(
+        sigma_rad=math.radians(1.0), learn_noise=True, outlier_nis=13.816, learn_walk=True
+    )
+    bank = riccati.bank_start(y[:, 0], np.full(runs, float(np.linalg.norm(xs[0]))), prm)
+    own, mixed = [], []
+    for k in range(1, len(t)):
+        riccati.bank_predict(bank, (0.5 * (v[k - 1] + v[k]) * dt)[None].repeat(runs, 0), dt, prm)
+        riccati.bank_update(bank, y[:, k], dt, prm)
+        if t[k] > 2.0 * duration / 3.0 and k % 20 == 0:
+            x, _, p = riccati.bank_estimate(bank)
+            err = x - xt[:, k]
+            for cov, out in ((bank.p, own), (p, mixed)):
+                inv = np.linalg.inv(cov[:, :3, :3])
+                out.append(np.einsum("ri,rij,rj->r", err, inv, err) / 3.0)
+    nees_own, nees_mixed = float(np.mean(own)), float(np.mean(mixed))
+    assert bank.walk_on.all() and np.all(bank.bias_walk(prm) > 0.0)
+    assert nees_mixed < nees_own, (nees_mixed, nees_own)
+    assert abs(math.log(nees_mixed)) < abs(math.log(nees_own)), (nees_mixed, nees_own)
