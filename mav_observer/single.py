@@ -129,21 +129,21 @@ class Single:
         lo, hi = self.walk_ll
         top = max(0.0, lo, hi)
         w0, w1, w2 = math.exp(-top), math.exp(lo - top), math.exp(hi - top)
-        total = w0 + w1 + w2
-        w0, w1, w2 = w0 / total, w1 / total, w2 / total
-        s0 = self.x[0] + self.a[0]
+        t = 1.0 / (w0 + w1 + w2)
+        w0, w1, w2 = w0 * t, w1 * t, w2 * t
+        x0, a0 = self.x[0], self.a[0]
         (x1, x2), (a1, a2) = self.walk_x, self.walk_a
-        d1 = [u - v for u, v in zip(x1 + a1, s0, strict=True)]
-        d2 = [u - v for u, v in zip(x2 + a2, s0, strict=True)]
-        r1, r2 = _ROW([w1 * c for c in d1]), _ROW([w2 * c for c in d2])
-        c1, c2 = _COL(d1), _COL(d2)
+        # the probes' offsets from the filter's [x, a], written out (6 entries each)
+        d1 = [x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2],
+              a1[0] - a0[0], a1[1] - a0[1], a1[2] - a0[2]]  # fmt: skip
+        d2 = [x2[0] - x0[0], x2[1] - x0[1], x2[2] - x0[2],
+              a2[0] - a0[0], a2[1] - a0[1], a2[2] - a0[2]]  # fmt: skip
+        e1, e2 = [w1 * c for c in d1], [w2 * c for c in d2]
+        p0, p1, p2 = self.p[0], self.walk_p[0], self.walk_p[1]
         acc = [
-            w0 * p0 + w1 * p1 + w2 * p2 + u1 * v1 + u2 * v2
-            for p0, p1, p2, u1, v1, u2, v2 in zip(
-                _UPPER(self.p[0]), _UPPER(self.walk_p[0]), _UPPER(self.walk_p[1]),
-                r1, c1, r2, c2, strict=True,
-            )
-        ]  # fmt: skip
+            w0 * p0[k] + w1 * p1[k] + w2 * p2[k] + e1[i] * d1[j] + e2[i] * d2[j]
+            for k, i, j in _UPPER_KIJ
+        ]
         return list(_MIRROR(acc))
 
     def _weighted(self) -> tuple[list[float], list[list[float]], list[float]]:
@@ -172,6 +172,8 @@ def _spread(
 _UPPER_IJ = tuple((i, j) for i in range(2 * N) for j in range(i, 2 * N))
 _ROW = operator.itemgetter(*(i for i, _ in _UPPER_IJ))
 _COL = operator.itemgetter(*(j for _, j in _UPPER_IJ))
+#: the upper triangle's flat 6x6 indices with their rows and columns
+_UPPER_KIJ = tuple((2 * N * i + j, i, j) for i, j in _UPPER_IJ)
 _MIRROR = operator.itemgetter(
     *(_UPPER_IJ.index((min(i, j), max(i, j))) for i in range(2 * N) for j in range(2 * N))
 )
