@@ -1,4 +1,4 @@
-"""The autopilot's local NED frame on the WGS84 ellipsoid: its origin, and positions in it as
+"""The autopilot's local NED frame on the earth: its origin, and positions in it as
 latitude, longitude and altitude (``docs/geolocation.md``).
 
 LOCAL_POSITION_NED's ``x, y, z`` are north, east and down from an origin the autopilot chose
@@ -10,11 +10,14 @@ order of preference (:data:`ORIGIN_SOURCES`):
 * ``GLOBAL_POSITION_INT``: the vehicle's latitude, longitude and altitude at the same
   ``time_boot_ms`` as a LOCAL_POSITION_NED sample.
 
-Altitudes are AMSL (MAVLink's ``altitude``/``alt`` fields) and are carried as heights along
-the origin's normal: over the few kilometres of a flight the geoid's slope is far below a
-millimetre per metre. A local point's conversion is pymap3d's ``ned2geodetic`` expanded
-to second order around the origin (:func:`to_geodetic`; the expansion from pymap3d once per
-origin): within 5 mm of pymap3d up to :data:`LOCAL_RADIUS_M` from the origin and
+The local frame is the autopilot's (:data:`LOCAL_FRAMES`): ArduPilot and PX4 place their GPS
+fixes in it on a sphere, not on the WGS84 ellipsoid, and the ellipsoid would put a point 40 m
+north of an ArduPilot origin 14 cm off at 35 deg of latitude. Altitudes are AMSL (MAVLink's
+``altitude``/``alt`` fields) and are carried as heights along the origin's normal: over the
+few kilometres of a flight the geoid's slope is far below a millimetre per metre. On the
+WGS84 frame a local point's conversion is pymap3d's ``ned2geodetic`` expanded to second
+order around the origin (:func:`to_geodetic`; the expansion from pymap3d once per origin):
+within 5 mm of pymap3d up to :data:`LOCAL_RADIUS_M` from the origin and
 :data:`LOCAL_MAX_LAT_DEG` of latitude (``tests/test_geodesy.py``), at 3 us instead of 85;
 farther, pymap3d's exact conversion. No I/O.
 """
@@ -28,6 +31,23 @@ from mav_observer.errors import InvalidSampleError
 
 #: Where an origin came from, most trusted first.
 ORIGIN_SOURCES = ("GPS_GLOBAL_ORIGIN", "HOME_POSITION", "GLOBAL_POSITION_INT")
+#: How an autopilot maps its local frame onto latitude and longitude (:func:`to_geodetic`):
+#:
+#: * ``"wgs84"``: the WGS84 ellipsoid's local NED frame (pymap3d's ``ned2geodetic``);
+#: * ``"ardupilot"``: ArduPilot's ``Location::offset`` and ``get_distance_NE``
+#:   (``libraries/AP_Common/Location.cpp``): north and east scaled on a sphere of
+#:   ``RADIUS_OF_EARTH`` = 6,378,100 m, east by the cosine of the mean latitude. Its EKF
+#:   places GPS fixes in the local frame that way and reports GLOBAL_POSITION_INT back the
+#:   same way, so the ellipsoid is 0.2-0.7 % off in north (0.34 % at 35 deg: 14 cm at 40 m);
+#: * ``"px4"``: PX4's ``MapProjection`` (``src/lib/geo``): an azimuthal equidistant
+#:   projection on a sphere of ``CONSTANTS_RADIUS_OF_EARTH`` = 6,371,000 m.
+#:
+#: Altitudes are the origin's minus ``down`` in all three.
+LOCAL_FRAMES = ("wgs84", "ardupilot", "px4")
+#: ArduPilot's ``RADIUS_OF_EARTH`` (m, ``libraries/AP_Math/definitions.h``).
+ARDUPILOT_EARTH_RADIUS_M = 6378100.0
+#: PX4's ``CONSTANTS_RADIUS_OF_EARTH`` (m, ``src/lib/geo/geo.h``).
+PX4_EARTH_RADIUS_M = 6371000.0
 #: Horizontal distance from the origin (m) within which the local expansion is used.
 LOCAL_RADIUS_M = 2000.0
 #: Latitude (deg, either way) beyond which pymap3d's exact conversion is always used.
@@ -49,12 +69,14 @@ def check_geodetic(lat_deg: float, lon_deg: float, alt_m: float, what: str) -> N
 @dataclass(frozen=True)
 class Origin:
     """The local NED frame's origin: WGS84 latitude and longitude (deg), altitude AMSL (m),
-    and the message it came from (one of :data:`ORIGIN_SOURCES`)."""
+    the message it came from (one of :data:`ORIGIN_SOURCES`) and how the autopilot maps its
+    local frame onto latitude and longitude (one of :data:`LOCAL_FRAMES`)."""
 
     lat_deg: float
     lon_deg: float
     alt_m: float
     source: str
+    frame: str = "wgs84"
     #: (lat, lon, alt) at the origin and their gradients and Hessians in (n, e, d), from
     #: pymap3d (:func:`_quadratic`), made when first needed (:attr:`model`): an origin
     #: no estimate is placed in costs nothing
@@ -68,6 +90,8 @@ class Origin:
             raise InvalidSampleError(
                 f"origin source {self.source!r} is not one of {ORIGIN_SOURCES}"
             )
+        if self.frame not in LOCAL_FRAMES:
+            raise InvalidSampleError(f"origin frame {self.frame!r} is not one of {LOCAL_FRAMES}")
 
     @property
     def model(self) -> tuple[tuple[float, ...], ...]:
@@ -84,31 +108,93 @@ class Origin:
             "lon_deg": self.lon_deg,
             "alt_m": self.alt_m,
             "source": self.source,
+            "frame": self.frame,
         }
 
 
 def origin_from(
-    lat_deg: float, lon_deg: float, alt_m: float, ned_m: tuple[float, float, float], source: str
+    lat_deg: float,
+    lon_deg: float,
+    alt_m: float,
+    ned_m: tuple[float, float, float],
+    source: str,
+    frame: str = "wgs84",
 ) -> Origin:
-    """The origin of a local frame in which the point at ``lat_deg, lon_deg, alt_m`` (AMSL)
-    is at ``ned_m`` (m, north, east, down), by pymap3d's exact conversions."""
+    """The origin of a local frame (``frame``, one of :data:`LOCAL_FRAMES`) in which the
+    point at ``lat_deg, lon_deg, alt_m`` (AMSL) is at ``ned_m`` (m, north, east, down), by
+    that frame's exact conversions."""
     check_geodetic(lat_deg, lon_deg, alt_m, source)
     if not all(math.isfinite(c) for c in ned_m):
         raise InvalidSampleError(f"{source}: local position {list(ned_m)} is not finite")
+    if frame not in LOCAL_FRAMES:
+        raise InvalidSampleError(f"origin frame {frame!r} is not one of {LOCAL_FRAMES}")
     n, e, d = ned_m
     if n == e == d == 0.0:  # the point is the origin
-        return Origin(lat_deg, lon_deg, alt_m, source)
-    lat, lon, alt = _exact(lat_deg, lon_deg, alt_m, (-n, -e, -d))
+        return Origin(lat_deg, lon_deg, alt_m, source, frame)
+    forward = _FORWARD[frame]
+    lat, lon, alt = forward(lat_deg, lon_deg, alt_m, (-n, -e, -d))
     # -ned_m is along the point's axes, not the origin's (they differ by |ned_m| / R rad):
-    # corrected until the origin maps ned_m onto the point (two rounds: micrometres)
-    for _ in range(2):
-        lat_p, lon_p, alt_p = _exact(lat, lon, alt, (n, e, d))
+    # corrected until the origin maps ned_m onto the point (three rounds: micrometres)
+    for _ in range(3):
+        lat_p, lon_p, alt_p = forward(lat, lon, alt, (n, e, d))
         lat, lon, alt = (
             lat + (lat_deg - lat_p),
             lon + math.remainder(lon_deg - lon_p, 360.0),
             alt + (alt_m - alt_p),
         )
-    return Origin(lat, math.remainder(lon, 360.0), alt, source)
+    return Origin(lat, math.remainder(lon, 360.0), alt, source, frame)
+
+
+def shifted(origin: Origin, dlat_deg: float, dlon_deg: float, dalt_m: float) -> Origin:
+    """``origin`` moved by a small amount (a few centimetres: ``dlat_deg``, ``dlon_deg``,
+    ``dalt_m``), its second-order expansion kept with only its value moved (the
+    gradients change by the shift over the earth's radius, about 1e-9)."""
+    out = Origin(origin.lat_deg + dlat_deg, origin.lon_deg + dlon_deg, origin.alt_m + dalt_m,
+                 origin.source, origin.frame)  # fmt: skip
+    if origin.frame != "wgs84":  # (no expansion: the sphere's formulas are closed)
+        return out
+    f0, *rest = origin.model
+    model = ((f0[0] + dlat_deg, f0[1] + dlon_deg, f0[2] + dalt_m), *rest)
+    object.__setattr__(out, "_model", model)
+    return out
+
+
+@dataclass
+class OriginMean:
+    """The origin of a local frame placed by many points known both ways (the vehicle's
+    GLOBAL_POSITION_INT, rounded to 1e-7 deg, about 1.1 cm, and its LOCAL_POSITION_NED at the
+    same time): one pair puts the origin up to half a rounding step off, the same for every
+    estimate of the flight; the mean over ``n`` pairs, as the vehicle moves, is about
+    ``sqrt(n)`` times nearer (the e2e case ``noise_0p2deg``, whose estimates' sigma is a few
+    millimetres, measured this). Each pair's point is placed by ``ref`` (the origin from the
+    first pair, its expansion made once) and the gaps (deg, deg, m) between where it says
+    the point is and where the pair says are averaged; :attr:`origin` is ``ref`` moved by
+    their mean (:func:`shifted`)."""
+
+    ref: Origin
+    n: int = 1
+    sums: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def add(
+        self, lat_deg: float, lon_deg: float, alt_m: float, ned_m: tuple[float, float, float]
+    ) -> None:
+        """One more pair: the point at ``lat_deg, lon_deg, alt_m`` (AMSL) is at ``ned_m``
+        (m) in the local frame."""
+        lat, lon, alt = to_geodetic(self.ref, ned_m)
+        s0, s1, s2 = self.sums
+        self.sums = (
+            s0 + (lat_deg - lat),
+            s1 + math.remainder(lon_deg - lon, 360.0),
+            s2 + (alt_m - alt),
+        )
+        self.n += 1
+
+    @property
+    def origin(self) -> Origin:
+        """``ref`` moved by the mean gap of the pairs."""
+        n = self.n
+        s0, s1, s2 = self.sums
+        return shifted(self.ref, s0 / n, s1 / n, s2 / n)
 
 
 def _exact(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tuple[float, ...]:
@@ -116,6 +202,35 @@ def _exact(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tup
 
     lat, lon, alt = pymap3d.ned2geodetic(ned[0], ned[1], ned[2], lat0, lon0, alt0)
     return float(lat), float(lon), float(alt)
+
+
+def _ardupilot(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tuple[float, ...]:
+    """ArduPilot's ``Location::offset`` of the origin by ``ned`` (m), in degrees rather than
+    its 1e-7 deg integers: north over the sphere's radius, east over the radius times the
+    cosine (at least 0.01) of the latitude half-way."""
+    k = 180.0 / (math.pi * ARDUPILOT_EARTH_RADIUS_M)
+    dlat = ned[0] * k
+    scale = max(math.cos(math.radians(lat0 + 0.5 * dlat)), 0.01)
+    return lat0 + dlat, lon0 + ned[1] * k / scale, alt0 - ned[2]
+
+
+def _px4(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tuple[float, ...]:
+    """PX4's ``MapProjection::reproject`` of ``ned`` (m) from the origin: the azimuthal
+    equidistant projection on its sphere."""
+    x, y = ned[0] / PX4_EARTH_RADIUS_M, ned[1] / PX4_EARTH_RADIUS_M
+    c = math.hypot(x, y)
+    if c == 0.0:
+        return lat0, lon0, alt0 - ned[2]
+    phi0, lam0 = math.radians(lat0), math.radians(lon0)
+    sin_c, cos_c = math.sin(c), math.cos(c)
+    sin0, cos0 = math.sin(phi0), math.cos(phi0)
+    lat = math.asin(max(-1.0, min(1.0, cos_c * sin0 + x * sin_c * cos0 / c)))
+    lon = lam0 + math.atan2(y * sin_c, c * cos0 * cos_c - x * sin0 * sin_c)
+    return math.degrees(lat), math.degrees(lon), alt0 - ned[2]
+
+
+#: Each frame's conversion of a local point from the origin (exact).
+_FORWARD = {"wgs84": _exact, "ardupilot": _ardupilot, "px4": _px4}
 
 
 #: Step (m) of the central differences of :func:`_quadratic`.
@@ -164,10 +279,14 @@ def gap_m(a: tuple[float, float, float], b: tuple[float, float, float]) -> float
 
 def to_geodetic(origin: Origin, ned_m: tuple[float, float, float]) -> tuple[float, float, float]:
     """``ned_m`` (m, in the frame of ``origin``) as (latitude deg, longitude deg, altitude m
-    AMSL): within :data:`LOCAL_RADIUS_M` of the origin and away from the poles (within
+    AMSL). An autopilot's sphere (``origin.frame`` ``"ardupilot"`` or ``"px4"``): its own
+    formulas. WGS84: within :data:`LOCAL_RADIUS_M` of the origin and away from the poles (within
     :data:`LOCAL_MAX_LAT_DEG`), the second-order expansion of pymap3d's conversion around the origin
     (:func:`_quadratic`); else pymap3d's exact ``ned2geodetic``."""
     n, e, d = ned_m
+    if origin.frame != "wgs84":  # an autopilot's sphere: closed formulas
+        lat, lon, alt = _FORWARD[origin.frame](origin.lat_deg, origin.lon_deg, origin.alt_m, ned_m)
+        return lat, math.remainder(lon, 360.0), alt
     if n * n + e * e > LOCAL_RADIUS_M * LOCAL_RADIUS_M or abs(origin.lat_deg) > LOCAL_MAX_LAT_DEG:
         lat, lon, alt = _exact(origin.lat_deg, origin.lon_deg, origin.alt_m, ned_m)
         return lat, math.remainder(lon, 360.0), alt

@@ -315,6 +315,12 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
             "auto: live in the service, committed in replay; live: each bearing's estimate at "
             "its arrival; committed: once the velocity after it is known",
         ),
+        "local_frame": (
+            d.local_frame,
+            tc("local_frame", _string),
+            "how the autopilot maps its local frame onto latitude and longitude: auto (by its "
+            "HEARTBEAT), wgs84, ardupilot, px4",
+        ),
     }
 
 
@@ -600,6 +606,7 @@ class Settings:
                 attitude_wait_s=t["attitude_wait_s"],
                 attitude_extrapolate_s=t["attitude_extrapolate_s"],
                 publish=t["publish"],
+                local_frame=t["local_frame"],
                 sysids=tuple(t["sysids"]) or None,
                 restore_max_gap_s=self.values["state"]["max_gap_s"],
                 observer=self.observer_config(),

@@ -4,7 +4,8 @@ Streams (each at its own rate, on the vehicle's simulated clock):
 
 * HEARTBEAT (1 Hz; a quadrotor running ArduPilot), SYSTEM_TIME (1 Hz), SYS_STATUS (1 Hz);
 * ATTITUDE and ATTITUDE_QUATERNION (``attitude_hz``), LOCAL_POSITION_NED and
-  GLOBAL_POSITION_INT (``position_hz``; velocity with the scenario's error and noise);
+  GLOBAL_POSITION_INT (``position_hz``; velocity with the scenario's error and noise; the
+  position placed as ArduPilot places it, :func:`ardupilot_offset`);
 * the bearing stream (``bearing_hz``), with the scenario's noise, dropouts and latency:
 
   ==========================  =================================================================
@@ -45,7 +46,6 @@ from pathlib import Path
 from typing import Any, BinaryIO, TextIO
 
 import numpy as np
-import pymap3d
 
 from mav_observer.frames import quat_from_euler
 from mav_observer.mavlink import adapters
@@ -77,6 +77,23 @@ TARGET_OF = {
 AUTOPILOT = 1
 CAMERA = 100
 ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M = -35.363261, 149.165230, 584.0
+#: ArduPilot's ``LOCATION_SCALING_FACTOR`` (m per 1e-7 deg on its sphere of 6,378,100 m,
+#: ``libraries/AP_Common/Location.h``).
+LOCATION_SCALING_FACTOR = 0.011131884502145034
+
+
+def ardupilot_offset(
+    lat0_deg: Any, lon0_deg: Any, alt0_m: Any, n_m: Any, e_m: Any, d_m: Any
+) -> tuple[Any, Any, Any]:
+    """Latitude and longitude (deg) and altitude (m AMSL) of the local point ``n_m, e_m,
+    d_m`` from the origin, as ArduPilot's ``Location::offset`` places it (its EKF reports
+    GLOBAL_POSITION_INT so, and the emitter is an ArduPilot): north over
+    ``LOCATION_SCALING_FACTOR``, east over it times the cosine of the latitude half-way, both
+    in 1e-7 deg. Scalars or numpy arrays."""
+    dlat_e7 = np.asarray(n_m) / LOCATION_SCALING_FACTOR
+    scale = np.maximum(np.cos(np.radians(lat0_deg + 0.5e-7 * dlat_e7)), 0.01)
+    dlon_e7 = np.asarray(e_m) / LOCATION_SCALING_FACTOR / scale
+    return lat0_deg + 1e-7 * dlat_e7, lon0_deg + 1e-7 * dlon_e7, alt0_m - np.asarray(d_m)
 
 
 @dataclass(frozen=True)
@@ -259,8 +276,8 @@ class Emitter:
                     )
                 ),
             )
-            lat, lon, alt = pymap3d.ned2geodetic(
-                p[0], p[1], p[2], ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M
+            lat, lon, alt = ardupilot_offset(
+                ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M, p[0], p[1], p[2]
             )
             yield Emission(
                 t + 0.0001,

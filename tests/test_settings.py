@@ -150,6 +150,10 @@ def test_the_tracker_settings_are_the_dataclass_fields_with_its_defaults() -> No
     changed = st.resolve(None, {"tracker": {"attitude_wait_s": 0.1, "sources": ["gimbal"]}})
     assert changed.tracker_config().attitude_wait_s == 0.1
     assert changed.tracker_config().sources == ("gimbal",)
+    px4 = st.resolve(None, {"tracker": {"local_frame": "px4"}})
+    assert px4.tracker_config().local_frame == "px4"
+    with pytest.raises(ConfigError, match=r"tracker\.local_frame must be .* got 'utm'"):
+        st.resolve(None, {"tracker": {"local_frame": "utm"}})
 
 
 def test_printed_settings_leave_the_other_estimators_keys_as_comments(tmp_path: Path) -> None:

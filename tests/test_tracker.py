@@ -673,6 +673,63 @@ def test_gps_global_origin_wins_and_global_position_pairs_with_local_position() 
     assert tr.vehicles[1].origin is o and tr.events["origin_changed"] == 2
 
 
+def test_global_position_pairs_are_averaged_into_the_origin() -> None:
+    # GLOBAL_POSITION_INT rounds to 1e-7 deg (about 1 cm): one pair puts the origin
+    # millimetres off for the whole flight; 300 pairs along a 50 m circle, averaged, within a
+    # millimetre, and no pair counts as a move
+    import pymap3d
+
+    lat0, lon0, alt0 = -35.36326123, 149.16523047, 584.0
+    tr = Tracker(TrackerConfig())
+    for k in range(300):
+        ms = 100_000 + 100 * k
+        ned = (50.0 * math.cos(0.02 * k), 50.0 * math.sin(0.02 * k), -20.0 - 0.013 * k)
+        tr.handle(T0_UNIX + 0.1 * k, _gpi(ms, *pymap3d.ned2geodetic(*ned, lat0, lon0, alt0)))
+        tr.handle(T0_UNIX + 0.1 * k, lpn(ms, ned))
+        if k == 0:
+            first = tr.vehicles[1].origin
+    o = tr.vehicles[1].origin
+    assert o.source == "GLOBAL_POSITION_INT" and "origin_changed" not in tr.events
+    n, e, d = pymap3d.geodetic2ned(o.lat_deg, o.lon_deg, o.alt_m, lat0, lon0, alt0)
+    n1, e1, _ = pymap3d.geodetic2ned(first.lat_deg, first.lon_deg, first.alt_m, lat0, lon0, alt0)
+    assert math.hypot(n1, e1) > 0.002  # the first pair alone
+    assert math.hypot(n, e) < 0.001 and abs(d) < 0.0005
+
+
+def _heartbeat(autopilot: int):
+    return message("HEARTBEAT", 2, autopilot, 0, 0, 4, 3)  # a quadrotor, armed
+
+
+@pytest.mark.parametrize(
+    ("autopilot", "setting", "frame"),
+    [(3, "auto", "ardupilot"), (12, "auto", "px4"), (0, "auto", "wgs84"), (3, "wgs84", "wgs84")],
+)
+def test_the_origin_is_on_the_autopilots_own_frame(autopilot, setting, frame) -> None:
+    # the SITL log's ROI, 40 m north and 30 m east of its home as ArduPilot placed it: HOME
+    # before the HEARTBEAT that names the autopilot, the origin placed again on its frame
+    from mav_observer.geodesy import to_geodetic
+
+    tr = Tracker(TrackerConfig(local_frame=setting))
+    sitl_home = (-35.363261, 149.1652299, 584.08)
+    tr.handle(T0_UNIX, _home(0.0, 0.0, 0.0, sitl_home))
+    assert tr.vehicles[1].origin.frame == "wgs84"
+    tr.handle(T0_UNIX + 0.1, _heartbeat(autopilot))
+    o = tr.vehicles[1].origin
+    assert o.frame == frame and tr.origin(1)["frame"] == frame
+    lat, lon, _ = to_geodetic(o, (40.0, 30.0, 0.0))
+    gap_m = math.hypot(
+        math.radians(lat + 35.362901673886356) * 6.371e6,
+        math.radians(lon - 149.16556036583896) * 6.371e6 * math.cos(math.radians(lat)),
+    )
+    assert (gap_m < 0.002) == (frame == "ardupilot")
+    assert "origin_changed" not in tr.events
+
+
+def test_a_bad_local_frame_setting_is_refused_naming_it() -> None:
+    with pytest.raises(ConfigError, match=r"local_frame must be .* got 'utm'"):
+        TrackerConfig(local_frame="utm")
+
+
 def test_an_impossible_origin_is_skipped_and_counted() -> None:
     tr = Tracker(TrackerConfig())
     tr.handle(T0_UNIX, message("GPS_GLOBAL_ORIGIN", 950_000_000, 0, 0))  # latitude 95 deg

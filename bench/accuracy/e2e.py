@@ -44,7 +44,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pymap3d
 
 from bench.accuracy import blocks, core, geo
 from bench.accuracy.report import markdown_table
@@ -442,7 +441,8 @@ def _geodetic_errors(
     sel: np.ndarray,
 ) -> dict[str, float]:
     """The target's published latitude, longitude and altitude against the truth's (its
-    local position on the emitter's origin, :data:`sim.emitter.ORIGIN_LAT_DEG`, by pymap3d)
+    local position on the emitter's origin, :data:`sim.emitter.ORIGIN_LAT_DEG`, as the emitter, an
+    ArduPilot, places it: :func:`sim.emitter.ardupilot_offset`)
     over the steady window: the median horizontal and vertical errors (m) and the share of
     estimates whose horizontal error is within twice their ``target_h_std_m`` (about 95 %
     for an honest one); the same share over every estimate from the run's first
@@ -466,14 +466,14 @@ def _geodetic_errors(
 
 def _truth_ll(recs: list[dict[str, Any]], truth: list[dict[str, Any]]) -> tuple[Any, Any, Any]:
     """The truth's target latitude, longitude and altitude at the records' times (its local
-    position interpolated, on the emitter's origin, by pymap3d)."""
+    position interpolated, on the emitter's origin, placed as the emitter places it)."""
     tt = np.array([d["t_boot_s"] for d in truth])
     order = np.argsort(tt, kind="stable")
     tp = np.array([d["target_pos_ned_m"] for d in truth])[order]
     t = np.array([r["t_boot_s"] for r in recs])
     tp_i = np.column_stack([np.interp(t, tt[order], tp[:, i]) for i in range(3)])
     lat0, lon0, alt0 = em.ORIGIN_LAT_DEG, em.ORIGIN_LON_DEG, em.ORIGIN_ALT_M
-    return pymap3d.ned2geodetic(tp_i[:, 0], tp_i[:, 1], tp_i[:, 2], lat0, lon0, alt0)
+    return em.ardupilot_offset(lat0, lon0, alt0, tp_i[:, 0], tp_i[:, 1], tp_i[:, 2])
 
 
 def run_one(

@@ -97,6 +97,10 @@ DRIFT_LEARN_S = 1.0
 #: rounded to 1 cm and 1e-7 deg (1.1 cm), disagree by centimetres; an EKF origin reset or a
 #: new home moves it by metres.
 ORIGIN_MOVED_M = {"GPS_GLOBAL_ORIGIN": 0.05, "HOME_POSITION": 0.05, "GLOBAL_POSITION_INT": 1.0}
+#: The local frame (:data:`~mav_observer.geodesy.LOCAL_FRAMES`) of an autopilot by
+#: HEARTBEAT's ``autopilot`` (MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4); any other:
+#: ``"wgs84"``.
+AUTOPILOT_FRAMES = {3: "ardupilot", 12: "px4"}
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,10 @@ class TrackerConfig:
       the LOCAL_POSITION_NED before it by the velocity known on both sides; ``"auto"``: live
       in the service, committed in
       ``replay`` (``docs/cli.md``, "What replay publishes").
+    * ``local_frame``: how the autopilot maps its local frame onto latitude and longitude
+      (:data:`~mav_observer.geodesy.LOCAL_FRAMES`): ``"auto"`` (by the autopilot's HEARTBEAT:
+      ArduPilot's sphere, PX4's projection, else the WGS84 ellipsoid), ``"wgs84"``,
+      ``"ardupilot"`` or ``"px4"`` (``docs/geolocation.md``, "Origins").
     """
 
     sources: tuple[str, ...] = ("auto",)
@@ -153,6 +161,7 @@ class TrackerConfig:
     restore_max_gap_s: float = 600.0
     observer: ObserverConfig = field(default_factory=ObserverConfig)
     publish: str = "auto"
+    local_frame: str = "auto"
 
     def __post_init__(self) -> None:
         srcs = tuple(self.sources)
@@ -189,6 +198,11 @@ class TrackerConfig:
             raise ConfigError(f"observer n must be 3 for NED, got {self.observer.n}")
         if self.publish not in PUBLISH:
             raise ConfigError(f"publish must be one of {PUBLISH}, got {self.publish!r}")
+        if self.local_frame not in ("auto", *geodesy.LOCAL_FRAMES):
+            raise ConfigError(
+                f"local_frame must be 'auto' or one of {geodesy.LOCAL_FRAMES}, "
+                f"got {self.local_frame!r}"
+            )
 
     def enabled(self) -> frozenset[str]:
         if "auto" in self.sources:
@@ -267,6 +281,12 @@ class _Vehicle:
     position_dev: list[float] | None = None
     #: the local frame's origin on WGS84 (:mod:`mav_observer.geodesy`), once known
     origin: Origin | None = None
+    #: the mean over GLOBAL_POSITION_INT's pairs while they place the origin
+    origin_mean: geodesy.OriginMean | None = None
+    #: what placed the origin: (source, lat deg, lon deg, alt m, the point's local NED m)
+    origin_fix: tuple[str, float, float, float, Vec3] | None = None
+    #: the autopilot's local frame by its HEARTBEAT (``None``: none seen yet)
+    local_frame: str | None = None
     #: the latest LOCAL_POSITION_NED's time_boot_ms and position, and the latest
     #: GLOBAL_POSITION_INT's time_boot_ms and (lat deg, lon deg, alt m): a pair at the same
     #: time_boot_ms places the origin when nothing better has
@@ -591,7 +611,8 @@ class Tracker:
         if self.sample_log is not None:
             self.sample_log.new_epoch(veh.sysid)
         keep = veh.autopilot_compid
-        fresh = _Vehicle(veh.sysid, self._new_targets(), autopilot_compid=keep, skipped=veh.skipped)
+        fresh = _Vehicle(veh.sysid, self._new_targets(), autopilot_compid=keep, skipped=veh.skipped,
+                         local_frame=veh.local_frame)  # fmt: skip
         if self._pending.pop(veh.sysid, None):
             log.warning("vehicle %d: saved observers discarded (autopilot rebooted)", veh.sysid)
         veh.__dict__.update(fresh.__dict__)
@@ -599,7 +620,31 @@ class Tracker:
     # -- vehicle state ----------------------------------------------------------------
     def _on_heartbeat(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         if msg.autopilot != MAV_AUTOPILOT_INVALID:
-            self._claim_autopilot(veh, msg.get_srcComponent())
+            comp = msg.get_srcComponent()
+            self._claim_autopilot(veh, comp)
+            frame = AUTOPILOT_FRAMES.get(msg.autopilot, "wgs84")
+            if comp == veh.autopilot_compid and frame != veh.local_frame:
+                veh.local_frame = frame
+                self._reframe_origin(veh)
+
+    def _local_frame(self, veh: _Vehicle) -> str:
+        """The vehicle's local frame: the setting, else its autopilot's, else WGS84."""
+        if self.config.local_frame != "auto":
+            return self.config.local_frame
+        return veh.local_frame or "wgs84"
+
+    def _reframe_origin(self, veh: _Vehicle) -> None:
+        """The origin placed again by what placed it, in the vehicle's local frame now known
+        (a HEARTBEAT after the origin's message)."""
+        fix, frame = veh.origin_fix, self._local_frame(veh)
+        if fix is None or veh.origin is None or veh.origin.frame == frame:
+            return
+        source, lat_deg, lon_deg, alt_m, ned = fix
+        veh.origin = geodesy.origin_from(lat_deg, lon_deg, alt_m, ned, source, frame)
+        veh.origin_mean = (
+            geodesy.OriginMean(veh.origin) if source == "GLOBAL_POSITION_INT" else None
+        )
+        log.info("vehicle %d: local frame origin placed again on the %s frame", veh.sysid, frame)
 
     def _on_system_time(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         comp = msg.get_srcComponent()
@@ -766,7 +811,9 @@ class Tracker:
         the origin, if ``source`` is at least as trusted as the one in use
         (:data:`~mav_observer.geodesy.ORIGIN_SOURCES`) and the origin in use does not already
         put it there (within :data:`ORIGIN_MOVED_M`); a moved origin (an EKF origin reset, a
-        new home) is counted as ``origin_changed`` and logged."""
+        new home) is counted as ``origin_changed`` and logged. GLOBAL_POSITION_INT's pairs that
+        agree with the origin in use are averaged into it (:class:`~mav_observer.geodesy.
+        OriginMean`: each is rounded to 1e-7 deg, about 1 cm)."""
         cur = veh.origin
         rank = geodesy.ORIGIN_SOURCES.index(source)
         if cur is not None:
@@ -783,12 +830,20 @@ class Tracker:
                     geodesy.gap_m((lat, lon, alt), (lat_deg, lon_deg, alt_m))
                     <= ORIGIN_MOVED_M[source]
                 ):
+                    mean = veh.origin_mean
+                    if mean is not None:  # another pair: the mean of them all
+                        mean.add(lat_deg, lon_deg, alt_m, ned)
+                        veh.origin = mean.origin
                     return
         try:
-            origin = geodesy.origin_from(lat_deg, lon_deg, alt_m, ned, source)
+            origin = geodesy.origin_from(
+                lat_deg, lon_deg, alt_m, ned, source, self._local_frame(veh)
+            )
         except InvalidSampleError as exc:
             raise Skip("out_of_range", str(exc)) from exc
         veh.origin = origin
+        veh.origin_fix = (source, lat_deg, lon_deg, alt_m, ned)
+        veh.origin_mean = geodesy.OriginMean(origin) if source == "GLOBAL_POSITION_INT" else None
         moved = (
             cur is not None
             and geodesy.gap_m(
