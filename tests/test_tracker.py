@@ -648,8 +648,9 @@ def test_the_local_origin_from_home_position_and_its_move_is_counted() -> None:
 def test_gps_global_origin_wins_and_global_position_pairs_with_local_position() -> None:
     # GLOBAL_POSITION_INT and LOCAL_POSITION_NED at the same time_boot_ms place the origin;
     # at different ones they do not; HOME_POSITION replaces it, GPS_GLOBAL_ORIGIN replaces
-    # that, and neither lesser source moves it any more
-    tr = Tracker(TrackerConfig())
+    # that, and neither lesser source moves it any more (the local frame told by the
+    # settings: no pair is then needed to tell it)
+    tr = Tracker(TrackerConfig(local_frame="wgs84"))
     tr.handle(T0_UNIX, lpn(100_000, (30.0, 40.0, -10.0)))
     tr.handle(T0_UNIX + 0.05, _gpi(100_050, *HOME_LL))
     assert tr.vehicles[1].origin is None
@@ -696,33 +697,86 @@ def test_global_position_pairs_are_averaged_into_the_origin() -> None:
     assert math.hypot(n, e) < 0.001 and abs(d) < 0.0005
 
 
-def _heartbeat(autopilot: int):
-    return message("HEARTBEAT", 2, autopilot, 0, 0, 4, 3)  # a quadrotor, armed
+def _flight_pairs(tr: Tracker, place, n: int = 80, t0: float = T0_UNIX) -> None:
+    """GLOBAL_POSITION_INT and LOCAL_POSITION_NED pairs along a 50 m circle, each local point
+    placed on the map by ``place(lat0, lon0, alt0, ned)`` from the origin (-35.363261,
+    149.1652299, 584.08) and rounded as MAVLink rounds it."""
+    for k in range(n):
+        ms = 100_000 + 100 * k
+        ned = (50.0 * math.sin(0.04 * k), 50.0 * (1.0 - math.cos(0.04 * k)), -20.0)
+        tr.handle(t0 + 0.1 * k, _gpi(ms, *place(-35.363261, 149.1652299, 584.08, ned)))
+        tr.handle(t0 + 0.1 * k, lpn(ms, ned))
+
+
+def _ardupilot_place(lat0, lon0, alt0, ned):
+    # ArduPilot's Location::offset, written from its source (libraries/AP_Common/Location.cpp)
+    dlat_e7 = ned[0] / 0.011131884502145034
+    scale = max(math.cos(math.radians(lat0 + 0.5e-7 * dlat_e7)), 0.01)
+    return lat0 + 1e-7 * dlat_e7, lon0 + 1e-7 * ned[1] / 0.011131884502145034 / scale, alt0 - ned[2]
+
+
+def _px4_place(lat0, lon0, alt0, ned):
+    # PX4's MapProjection::reproject (src/lib/geo), on its sphere of 6,371,000 m
+    x, y = ned[0] / 6371000.0, ned[1] / 6371000.0
+    c = math.hypot(x, y)
+    if c == 0.0:
+        return lat0, lon0, alt0 - ned[2]
+    p0, l0 = math.radians(lat0), math.radians(lon0)
+    lat = math.asin(math.cos(c) * math.sin(p0) + x * math.sin(c) * math.cos(p0) / c)
+    lon = l0 + math.atan2(
+        y * math.sin(c), c * math.cos(p0) * math.cos(c) - x * math.sin(p0) * math.sin(c)
+    )
+    return math.degrees(lat), math.degrees(lon), alt0 - ned[2]
+
+
+def _wgs84_place(lat0, lon0, alt0, ned):
+    import pymap3d
+
+    return tuple(float(v) for v in pymap3d.ned2geodetic(*ned, lat0, lon0, alt0))
 
 
 @pytest.mark.parametrize(
-    ("autopilot", "setting", "frame"),
-    [(3, "auto", "ardupilot"), (12, "auto", "px4"), (0, "auto", "wgs84"), (3, "wgs84", "wgs84")],
+    ("place", "frame"),
+    [(_ardupilot_place, "ardupilot"), (_px4_place, "px4"), (_wgs84_place, "wgs84")],
 )
-def test_the_origin_is_on_the_autopilots_own_frame(autopilot, setting, frame) -> None:
-    # the SITL log's ROI, 40 m north and 30 m east of its home as ArduPilot placed it: HOME
-    # before the HEARTBEAT that names the autopilot, the origin placed again on its frame
+@pytest.mark.parametrize("origin_from", ["GLOBAL_POSITION_INT", "GPS_GLOBAL_ORIGIN"])
+def test_the_pairs_tell_the_autopilots_local_frame(place, frame, origin_from) -> None:
+    # the origin on the WGS84 ellipsoid until the vehicle has flown 30 m; then its own
+    # GLOBAL_POSITION_INT and LOCAL_POSITION_NED pairs say which frame it maps them by, the
+    # origin is placed again on it, and a point 40 m north and 30 m east of it lands where
+    # the autopilot would place it (ArduPilot's: the SITL log's ROI, within 2 mm)
     from mav_observer.geodesy import to_geodetic
 
-    tr = Tracker(TrackerConfig(local_frame=setting))
-    sitl_home = (-35.363261, 149.1652299, 584.08)
-    tr.handle(T0_UNIX, _home(0.0, 0.0, 0.0, sitl_home))
-    assert tr.vehicles[1].origin.frame == "wgs84"
-    tr.handle(T0_UNIX + 0.1, _heartbeat(autopilot))
-    o = tr.vehicles[1].origin
-    assert o.frame == frame and tr.origin(1)["frame"] == frame
-    lat, lon, _ = to_geodetic(o, (40.0, 30.0, 0.0))
+    tr = Tracker(TrackerConfig())
+    if origin_from == "GPS_GLOBAL_ORIGIN":
+        tr.handle(T0_UNIX, message("GPS_GLOBAL_ORIGIN", -353632610, 1491652299, 584_080))
+    gpi_id = _gpi(1, *HOME_LL).get_msgId()
+    _flight_pairs(tr, place, n=4)
+    assert tr.vehicles[1].origin.frame == "wgs84" and tr.vehicles[1].local_frame is None
+    assert gpi_id not in tr.redundant_message_ids()  # still needed: the frame is not told
+    _flight_pairs(tr, place, n=80)
+    veh = tr.vehicles[1]
+    assert veh.local_frame == frame and tr.events[f"local_frame_{frame}"] == 1
+    assert veh.origin.frame == frame and veh.origin.source == origin_from
+    assert tr.origin(1)["frame"] == frame and "origin_changed" not in tr.events
+    want = place(-35.363261, 149.1652299, 584.08, (40.0, 30.0, 0.0))
+    lat, lon, _ = to_geodetic(veh.origin, (40.0, 30.0, 0.0))
     gap_m = math.hypot(
-        math.radians(lat + 35.362901673886356) * 6.371e6,
-        math.radians(lon - 149.16556036583896) * 6.371e6 * math.cos(math.radians(lat)),
+        math.radians(lat - want[0]) * 6.371e6,
+        math.radians(lon - want[1]) * 6.371e6 * math.cos(math.radians(lat)),
     )
-    assert (gap_m < 0.002) == (frame == "ardupilot")
-    assert "origin_changed" not in tr.events
+    assert gap_m < 0.003, gap_m
+    if frame == "ardupilot":
+        assert (lat, lon) == pytest.approx((-35.362901673886356, 149.16556036583896), abs=3e-8)
+    if origin_from == "GPS_GLOBAL_ORIGIN":
+        assert gpi_id in tr.redundant_message_ids()  # told, and a better origin: not needed
+
+
+def test_a_local_frame_set_is_not_voted_on() -> None:
+    tr = Tracker(TrackerConfig(local_frame="px4"))
+    _flight_pairs(tr, _ardupilot_place, n=80)
+    assert tr.vehicles[1].origin.frame == "px4" and tr.vehicles[1].frame_vote is None
+    assert not any(k.startswith("local_frame_") for k in tr.events)
 
 
 def test_a_bad_local_frame_setting_is_refused_naming_it() -> None:

@@ -97,10 +97,6 @@ DRIFT_LEARN_S = 1.0
 #: rounded to 1 cm and 1e-7 deg (1.1 cm), disagree by centimetres; an EKF origin reset or a
 #: new home moves it by metres.
 ORIGIN_MOVED_M = {"GPS_GLOBAL_ORIGIN": 0.05, "HOME_POSITION": 0.05, "GLOBAL_POSITION_INT": 1.0}
-#: The local frame (:data:`~mav_observer.geodesy.LOCAL_FRAMES`) of an autopilot by
-#: HEARTBEAT's ``autopilot`` (MAV_AUTOPILOT_ARDUPILOTMEGA, MAV_AUTOPILOT_PX4); any other:
-#: ``"wgs84"``.
-AUTOPILOT_FRAMES = {3: "ardupilot", 12: "px4"}
 
 
 @dataclass(frozen=True)
@@ -141,9 +137,11 @@ class TrackerConfig:
       in the service, committed in
       ``replay`` (``docs/cli.md``, "What replay publishes").
     * ``local_frame``: how the autopilot maps its local frame onto latitude and longitude
-      (:data:`~mav_observer.geodesy.LOCAL_FRAMES`): ``"auto"`` (by the autopilot's HEARTBEAT:
-      ArduPilot's sphere, PX4's projection, else the WGS84 ellipsoid), ``"wgs84"``,
-      ``"ardupilot"`` or ``"px4"`` (``docs/geolocation.md``, "Origins").
+      (:data:`~mav_observer.geodesy.LOCAL_FRAMES`): ``"auto"`` (the WGS84 ellipsoid until the
+      vehicle's own GLOBAL_POSITION_INT and LOCAL_POSITION_NED pairs tell ArduPilot's sphere,
+      PX4's projection or the ellipsoid apart, :class:`~mav_observer.geodesy.FrameVote`),
+      ``"wgs84"``, ``"ardupilot"`` or ``"px4"`` (``docs/geolocation.md``, "Frames and
+      altitudes").
     """
 
     sources: tuple[str, ...] = ("auto",)
@@ -285,8 +283,10 @@ class _Vehicle:
     origin_mean: geodesy.OriginMean | None = None
     #: what placed the origin: (source, lat deg, lon deg, alt m, the point's local NED m)
     origin_fix: tuple[str, float, float, float, Vec3] | None = None
-    #: the autopilot's local frame by its HEARTBEAT (``None``: none seen yet)
+    #: the autopilot's local frame as its pairs told it (``None``: not yet told)
     local_frame: str | None = None
+    #: the pairs' vote on it while it is not told (``local_frame = "auto"``)
+    frame_vote: geodesy.FrameVote | None = None
     #: the latest LOCAL_POSITION_NED's time_boot_ms and position, and the latest
     #: GLOBAL_POSITION_INT's time_boot_ms and (lat deg, lon deg, alt m): a pair at the same
     #: time_boot_ms places the origin when nothing better has
@@ -620,31 +620,38 @@ class Tracker:
     # -- vehicle state ----------------------------------------------------------------
     def _on_heartbeat(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         if msg.autopilot != MAV_AUTOPILOT_INVALID:
-            comp = msg.get_srcComponent()
-            self._claim_autopilot(veh, comp)
-            frame = AUTOPILOT_FRAMES.get(msg.autopilot, "wgs84")
-            if comp == veh.autopilot_compid and frame != veh.local_frame:
-                veh.local_frame = frame
-                self._reframe_origin(veh)
+            self._claim_autopilot(veh, msg.get_srcComponent())
 
     def _local_frame(self, veh: _Vehicle) -> str:
-        """The vehicle's local frame: the setting, else its autopilot's, else WGS84."""
+        """The vehicle's local frame: the setting, else as its pairs told it, else WGS84."""
         if self.config.local_frame != "auto":
             return self.config.local_frame
         return veh.local_frame or "wgs84"
 
-    def _reframe_origin(self, veh: _Vehicle) -> None:
-        """The origin placed again by what placed it, in the vehicle's local frame now known
-        (a HEARTBEAT after the origin's message)."""
-        fix, frame = veh.origin_fix, self._local_frame(veh)
-        if fix is None or veh.origin is None or veh.origin.frame == frame:
+    def _vote_frame(self, veh: _Vehicle, lat_deg: float, lon_deg: float, alt_m: float,
+                    ned: Vec3) -> None:  # fmt: skip
+        """One more GLOBAL_POSITION_INT and LOCAL_POSITION_NED pair for the frame's vote; once
+        it has decided, the origin placed again on that frame (a GLOBAL_POSITION_INT origin
+        with the mean of its pairs on it) and the event ``local_frame_<frame>`` counted."""
+        vote = veh.frame_vote
+        if vote is None:
             return
-        source, lat_deg, lon_deg, alt_m, ned = fix
-        veh.origin = geodesy.origin_from(lat_deg, lon_deg, alt_m, ned, source, frame)
-        veh.origin_mean = (
-            geodesy.OriginMean(veh.origin) if source == "GLOBAL_POSITION_INT" else None
-        )
-        log.info("vehicle %d: local frame origin placed again on the %s frame", veh.sysid, frame)
+        vote.add(lat_deg, lon_deg, alt_m, ned)
+        frame = vote.decided()
+        if frame is None:
+            return
+        veh.local_frame, veh.frame_vote = frame, None
+        self._note(veh, f"local_frame_{frame}")
+        log.info("vehicle %d: local frame told by its position pairs: %s", veh.sysid, frame)
+        origin = veh.origin
+        if origin is None or origin.frame == frame:
+            return
+        if origin.source == "GLOBAL_POSITION_INT":
+            veh.origin_mean = vote.means[frame]
+            veh.origin = veh.origin_mean.origin
+        elif veh.origin_fix is not None:
+            source, lat0, lon0, alt0, ned0 = veh.origin_fix
+            veh.origin = geodesy.origin_from(lat0, lon0, alt0, ned0, source, frame)
 
     def _on_system_time(self, veh: _Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         comp = msg.get_srcComponent()
@@ -801,6 +808,12 @@ class Tracker:
         if g is None or lp is None or g[0] != lp[0]:
             return
         if veh.origin is not None and veh.origin.source != "GLOBAL_POSITION_INT":
+            if veh.frame_vote is not None:  # a better source placed it: the pair only votes
+                try:
+                    geodesy.check_geodetic(*g[1], "GLOBAL_POSITION_INT")
+                except InvalidSampleError as exc:
+                    raise Skip("out_of_range", str(exc)) from exc
+                self._vote_frame(veh, *g[1], lp[1])
             return
         self._place_origin(veh, "GLOBAL_POSITION_INT", *g[1], lp[1])
 
@@ -832,8 +845,11 @@ class Tracker:
                 ):
                     mean = veh.origin_mean
                     if mean is not None:  # another pair: the mean of them all
-                        mean.add(lat_deg, lon_deg, alt_m, ned)
-                        veh.origin = mean.origin
+                        if veh.frame_vote is not None:  # (the mean in use is among its)
+                            self._vote_frame(veh, lat_deg, lon_deg, alt_m, ned)
+                        else:
+                            mean.add(lat_deg, lon_deg, alt_m, ned)
+                        veh.origin = veh.origin_mean.origin  # type: ignore[union-attr]
                     return
         try:
             origin = geodesy.origin_from(
@@ -843,7 +859,14 @@ class Tracker:
             raise Skip("out_of_range", str(exc)) from exc
         veh.origin = origin
         veh.origin_fix = (source, lat_deg, lon_deg, alt_m, ned)
-        veh.origin_mean = geodesy.OriginMean(origin) if source == "GLOBAL_POSITION_INT" else None
+        vote = None
+        if self.config.local_frame == "auto" and veh.local_frame is None:
+            vote = geodesy.FrameVote.start(lat_deg, lon_deg, alt_m, ned, source)
+        veh.frame_vote = vote
+        if source != "GLOBAL_POSITION_INT":
+            veh.origin_mean = None
+        else:  # the pairs' mean (while the frame is voted on, the vote's for the frame in use)
+            veh.origin_mean = vote.means[origin.frame] if vote else geodesy.OriginMean(origin)
         moved = (
             cur is not None
             and geodesy.gap_m(
@@ -1226,12 +1249,15 @@ class Tracker:
     def redundant_message_ids(self) -> frozenset[int]:
         """Ids that need no decoding any more: ATTITUDE_QUATERNION once ATTITUDE is arriving
         (both give the vehicle attitude); GLOBAL_POSITION_INT once every vehicle's origin
-        comes from a more trusted source (it can no longer move it)."""
+        comes from a more trusted source (it can no longer move it) and its local frame is
+        told (:class:`~mav_observer.geodesy.FrameVote`)."""
         out = set()
         if self.used.get("ATTITUDE"):
             out.add(MSG_ID["ATTITUDE_QUATERNION"])
         if self.vehicles and all(
-            v.origin is not None and v.origin.source != "GLOBAL_POSITION_INT"
+            v.origin is not None
+            and v.origin.source != "GLOBAL_POSITION_INT"
+            and v.frame_vote is None
             for v in self.vehicles.values()
         ):
             out.add(MSG_ID["GLOBAL_POSITION_INT"])
