@@ -218,14 +218,13 @@ class FrameVote:
     """Which of :data:`LOCAL_FRAMES` the autopilot maps its local frame by, told by its own
     GLOBAL_POSITION_INT and LOCAL_POSITION_NED pairs: each frame places the origin from what
     placed it (:meth:`start`) and every pair after it (:class:`OriginMean`); the autopilot's
-    frame leaves a few millimetres of scatter (the rounding), another 0.1-0.7 % of the
-    distance the pairs spread over (measured on the shared SITL log, an ArduPilot: 8 mm on
-    ``ardupilot``, 4 cm on ``wgs84`` up to 47 m out). :meth:`decided` names the frame once the
-    pairs have spread :data:`FRAME_SPREAD_M` and :data:`FRAME_PAIRS` of them agree."""
+    frame leaves the rounding's few millimetres of scatter between the pairs, another 0.1-0.7 %
+    of the distance they spread over (measured on the shared SITL log, an ArduPilot: 8 mm on
+    ``ardupilot``, 4 cm on ``wgs84`` up to 47 m out; on the emitter's figure-8, an ArduPilot
+    too, 4, 15 and 37 mm on ``ardupilot``, ``px4`` and ``wgs84`` after 60 s).
+    :meth:`leader` is the frame to use meanwhile, :meth:`decided` the frame once it is clear."""
 
     means: dict[str, OriginMean]
-    first_ne_m: tuple[float, float]
-    spread_m: float = 0.0
 
     @classmethod
     def start(
@@ -233,11 +232,12 @@ class FrameVote:
         source: str,
     ) -> FrameVote:  # fmt: skip
         """A vote from the point that placed the origin (``source``; as :func:`origin_from`)."""
-        means = {
-            f: OriginMean(origin_from(lat_deg, lon_deg, alt_m, ned_m, source, f))
-            for f in LOCAL_FRAMES
-        }
-        return cls(means, (ned_m[0], ned_m[1]))
+        return cls(
+            {
+                f: OriginMean(origin_from(lat_deg, lon_deg, alt_m, ned_m, source, f))
+                for f in LOCAL_FRAMES
+            }
+        )
 
     def add(
         self, lat_deg: float, lon_deg: float, alt_m: float, ned_m: tuple[float, float, float]
@@ -245,24 +245,37 @@ class FrameVote:
         """One GLOBAL_POSITION_INT and LOCAL_POSITION_NED pair (as :meth:`OriginMean.add`)."""
         for mean in self.means.values():
             mean.add(lat_deg, lon_deg, alt_m, ned_m)
-        d = math.hypot(ned_m[0] - self.first_ne_m[0], ned_m[1] - self.first_ne_m[1])
-        self.spread_m = max(self.spread_m, d)
+
+    def _ranked(self) -> list[tuple[float, str]]:
+        return sorted((m.scatter_m(), f) for f, m in self.means.items())
+
+    def leader(self, current: str) -> str:
+        """The frame to use now, ``current`` being the one in use: the least scattered once
+        :data:`FRAME_PAIRS` pairs are in, if ``current``'s scatter is past the rounding
+        (:data:`FRAME_GAP_M`) and at least twice the least; else ``current``."""
+        if self.means[current].n < FRAME_PAIRS:
+            return current
+        best, frame = self._ranked()[0]
+        here = self.means[current].scatter_m()
+        return frame if here >= FRAME_GAP_M and best <= 0.5 * here else current
 
     def decided(self) -> str | None:
-        """The frame whose scatter is least, at most half the next one's, once the pairs
-        have spread :data:`FRAME_SPREAD_M` (m) and number :data:`FRAME_PAIRS`; else ``None``."""
-        if self.spread_m < FRAME_SPREAD_M or self.means["wgs84"].n < FRAME_PAIRS:
-            return None
-        ranked = sorted((m.scatter_m(), f) for f, m in self.means.items())
+        """The frame once it is clear: the least scattered, at most half the next one's,
+        the next one past the rounding (:data:`FRAME_GAP_M`), over :data:`FRAME_PAIRS` pairs
+        or more; else ``None`` (a vehicle that has not moved far enough to tell them apart)."""
+        ranked = self._ranked()
         (best, frame), (second, _) = ranked[0], ranked[1]
-        return frame if best <= 0.5 * second else None
+        n = self.means[frame].n
+        return (
+            frame if n >= FRAME_PAIRS and second >= FRAME_GAP_M and best <= 0.5 * second else None
+        )
 
 
-#: The pairs must spread this far (m) from the first before :class:`FrameVote` decides: the
-#: frames' gaps grow as 0.1-0.7 % of it, 3 cm or more against the rounding's few millimetres.
-FRAME_SPREAD_M = 30.0
-#: ... and number at least this many.
+#: :class:`FrameVote` weighs the frames once it has this many pairs ...
 FRAME_PAIRS = 30
+#: ... and tells them apart where their scatter is past this (m): the rounding of a pair's
+#: latitude and longitude to 1e-7 deg leaves about 4.5 mm.
+FRAME_GAP_M = 0.01
 
 
 def _exact(lat0: float, lon0: float, alt0: float, ned: tuple[float, ...]) -> tuple[float, ...]:

@@ -318,8 +318,8 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
         "local_frame": (
             d.local_frame,
             tc("local_frame", _string),
-            "how the autopilot maps its local frame onto latitude and longitude: auto (by its "
-            "HEARTBEAT), wgs84, ardupilot, px4",
+            "how the autopilot maps its local frame onto latitude and longitude: auto (wgs84 "
+            "until its position pairs tell), wgs84, ardupilot, px4",
         ),
     }
 

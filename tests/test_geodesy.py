@@ -185,3 +185,33 @@ def test_an_unknown_frame_is_refused_naming_it() -> None:
         Origin(0.0, 0.0, 0.0, "HOME_POSITION", "nad83")
     with pytest.raises(InvalidSampleError, match="origin frame 'enu'"):
         origin_from(0.0, 0.0, 0.0, (1.0, 0.0, 0.0), "HOME_POSITION", "enu")
+
+
+def _ardupilot_point(lat0: float, lon0: float, alt0: float, ned) -> tuple[float, float, float]:
+    # ArduPilot's Location::offset, from its source (libraries/AP_Common/Location.cpp),
+    # rounded as GLOBAL_POSITION_INT rounds it
+    k = 0.011131884502145034  # LOCATION_SCALING_FACTOR, m per 1e-7 deg
+    dlat = ned[0] / k
+    dlon = ned[1] / k / math.cos(math.radians(lat0 + 0.5e-7 * dlat))
+    return round((lat0 + 1e-7 * dlat) * 1e7) * 1e-7, round((lon0 + 1e-7 * dlon) * 1e7) * 1e-7, alt0
+
+
+def test_the_vote_tells_the_frame_once_the_pairs_spread_and_not_before() -> None:
+    from mav_observer.geodesy import FRAME_PAIRS, FrameVote
+
+    home = (-35.363261, 149.1652299, 584.08)
+    vote = FrameVote.start(*home, (0.0, 0.0, 0.0), "GPS_GLOBAL_ORIGIN")
+    for k in range(200):  # hovering within a metre: the frames cannot be told apart
+        ned = (0.5 * math.sin(0.1 * k), 0.5 * math.cos(0.1 * k), -10.0)
+        vote.add(*_ardupilot_point(*home, ned), ned)
+    assert vote.decided() is None and vote.leader("wgs84") == "wgs84"
+    for k in range(FRAME_PAIRS):  # then out along a 40 m line and back
+        ned = (40.0 * math.sin(0.1 * k), 25.0 * math.sin(0.1 * k), -10.0)
+        vote.add(*_ardupilot_point(*home, ned), ned)
+    assert vote.leader("wgs84") == "ardupilot"
+    scatter = {f: m.scatter_m() for f, m in vote.means.items()}
+    assert scatter["ardupilot"] < 0.005 and scatter["wgs84"] > 0.01
+    for k in range(200):
+        ned = (40.0 * math.sin(0.05 * k), 40.0 * (1 - math.cos(0.05 * k)), -10.0)
+        vote.add(*_ardupilot_point(*home, ned), ned)
+    assert vote.decided() == "ardupilot"

@@ -630,21 +630,25 @@ class Tracker:
 
     def _vote_frame(self, veh: _Vehicle, lat_deg: float, lon_deg: float, alt_m: float,
                     ned: Vec3) -> None:  # fmt: skip
-        """One more GLOBAL_POSITION_INT and LOCAL_POSITION_NED pair for the frame's vote; once
-        it has decided, the origin placed again on that frame (a GLOBAL_POSITION_INT origin
-        with the mean of its pairs on it) and the event ``local_frame_<frame>`` counted."""
+        """One more GLOBAL_POSITION_INT and LOCAL_POSITION_NED pair for the frame's vote: the
+        origin placed again on the vote's leader when it changes (a GLOBAL_POSITION_INT origin
+        with the mean of its pairs on that frame); once the vote has decided, the event
+        ``local_frame_<frame>`` counted and the vote ended."""
         vote = veh.frame_vote
         if vote is None:
             return
         vote.add(lat_deg, lon_deg, alt_m, ned)
-        frame = vote.decided()
-        if frame is None:
-            return
-        veh.local_frame, veh.frame_vote = frame, None
-        self._note(veh, f"local_frame_{frame}")
-        log.info("vehicle %d: local frame told by its position pairs: %s", veh.sysid, frame)
         origin = veh.origin
-        if origin is None or origin.frame == frame:
+        if origin is None:
+            return
+        frame = vote.decided()
+        if frame is not None:
+            veh.local_frame, veh.frame_vote = frame, None
+            self._note(veh, f"local_frame_{frame}")
+            log.info("vehicle %d: local frame told by its position pairs: %s", veh.sysid, frame)
+        else:
+            frame = vote.leader(origin.frame)
+        if origin.frame == frame:
             return
         if origin.source == "GLOBAL_POSITION_INT":
             veh.origin_mean = vote.means[frame]
