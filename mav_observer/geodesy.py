@@ -50,6 +50,8 @@ ARDUPILOT_EARTH_RADIUS_M = 6378100.0
 PX4_EARTH_RADIUS_M = 6371000.0
 #: Horizontal distance from the origin (m) within which the local expansion is used.
 LOCAL_RADIUS_M = 2000.0
+#: The earth's mean radius (m): distances for thresholds and scatter, not for placing points.
+MEAN_EARTH_RADIUS_M = 6.371e6
 #: Latitude (deg, either way) beyond which pymap3d's exact conversion is always used.
 LOCAL_MAX_LAT_DEG = 80.0
 
@@ -192,7 +194,7 @@ class OriginMean:
         self.n += 1
 
     def _m_per_deg(self) -> tuple[float, float]:
-        k = math.pi / 180.0 * 6.371e6
+        k = math.radians(MEAN_EARTH_RADIUS_M)
         return k, k * math.cos(math.radians(self.ref.lat_deg))
 
     def scatter_m(self) -> float:
@@ -222,7 +224,7 @@ class FrameVote:
     of the distance they spread over (measured on the shared SITL log, an ArduPilot: 8 mm on
     ``ardupilot``, 4 cm on ``wgs84`` up to 47 m out; on the emitter's figure-8, an ArduPilot
     too, 4, 15 and 37 mm on ``ardupilot``, ``px4`` and ``wgs84`` after 60 s).
-    :meth:`leader` is the frame to use meanwhile, :meth:`decided` the frame once it is clear."""
+    :meth:`choice` is the frame to use, and whether it is clear."""
 
     means: dict[str, OriginMean]
 
@@ -246,29 +248,22 @@ class FrameVote:
         for mean in self.means.values():
             mean.add(lat_deg, lon_deg, alt_m, ned_m)
 
-    def _ranked(self) -> list[tuple[float, str]]:
-        return sorted((m.scatter_m(), f) for f, m in self.means.items())
-
-    def leader(self, current: str) -> str:
-        """The frame to use now, ``current`` being the one in use: the least scattered once
-        :data:`FRAME_PAIRS` pairs are in, if ``current``'s scatter is past the rounding
-        (:data:`FRAME_GAP_M`) and at least twice the least; else ``current``."""
+    def choice(self, current: str) -> tuple[str, bool]:
+        """The frame to use now, ``current`` being the one in use, and whether the vote has
+        decided, from :data:`FRAME_PAIRS` pairs on (before: ``current``, not decided).
+        Decided: the least scattered, at most half the next one's, the next past the rounding
+        (:data:`FRAME_GAP_M`). Not yet (a vehicle that has not moved far enough to tell them
+        apart): the least scattered if ``current``'s scatter is past the rounding and at least
+        twice the least, else ``current``."""
         if self.means[current].n < FRAME_PAIRS:
-            return current
-        best, frame = self._ranked()[0]
-        here = self.means[current].scatter_m()
-        return frame if here >= FRAME_GAP_M and best <= 0.5 * here else current
-
-    def decided(self) -> str | None:
-        """The frame once it is clear: the least scattered, at most half the next one's,
-        the next one past the rounding (:data:`FRAME_GAP_M`), over :data:`FRAME_PAIRS` pairs
-        or more; else ``None`` (a vehicle that has not moved far enough to tell them apart)."""
-        ranked = self._ranked()
+            return current, False
+        scatter = {f: m.scatter_m() for f, m in self.means.items()}
+        ranked = sorted((v, f) for f, v in scatter.items())
         (best, frame), (second, _) = ranked[0], ranked[1]
-        n = self.means[frame].n
-        return (
-            frame if n >= FRAME_PAIRS and second >= FRAME_GAP_M and best <= 0.5 * second else None
-        )
+        if second >= FRAME_GAP_M and best <= 0.5 * second:
+            return frame, True
+        here = scatter[current]
+        return (frame if here >= FRAME_GAP_M and best <= 0.5 * here else current), False
 
 
 #: :class:`FrameVote` weighs the frames once it has this many pairs ...
@@ -353,8 +348,9 @@ def gap_m(a: tuple[float, float, float], b: tuple[float, float, float]) -> float
     """The larger of the horizontal and vertical distances (m) between two points given as
     (latitude deg, longitude deg, altitude m); the horizontal one on a sphere of the mean
     earth radius (within 0.5 %: for thresholds, not for scoring)."""
-    dn = math.radians(a[0] - b[0]) * 6.371e6
-    de = math.radians(math.remainder(a[1] - b[1], 360.0)) * 6.371e6 * math.cos(math.radians(b[0]))
+    r = MEAN_EARTH_RADIUS_M
+    dn = math.radians(a[0] - b[0]) * r
+    de = math.radians(math.remainder(a[1] - b[1], 360.0)) * r * math.cos(math.radians(b[0]))
     return max(math.hypot(dn, de), abs(a[2] - b[2]))
 
 

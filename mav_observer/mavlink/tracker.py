@@ -631,7 +631,7 @@ class Tracker:
     def _vote_frame(self, veh: _Vehicle, lat_deg: float, lon_deg: float, alt_m: float,
                     ned: Vec3) -> None:  # fmt: skip
         """One more GLOBAL_POSITION_INT and LOCAL_POSITION_NED pair for the frame's vote: the
-        origin placed again on the vote's leader when it changes (a GLOBAL_POSITION_INT origin
+        origin placed again on the vote's choice when it changes (a GLOBAL_POSITION_INT origin
         with the mean of its pairs on that frame); once the vote has decided, the event
         ``local_frame_<frame>`` counted and the vote ended."""
         vote = veh.frame_vote
@@ -641,13 +641,11 @@ class Tracker:
         origin = veh.origin
         if origin is None:
             return
-        frame = vote.decided()
-        if frame is not None:
+        frame, decided = vote.choice(origin.frame)
+        if decided:
             veh.local_frame, veh.frame_vote = frame, None
             self._note(veh, f"local_frame_{frame}")
             log.info("vehicle %d: local frame told by its position pairs: %s", veh.sysid, frame)
-        else:
-            frame = vote.leader(origin.frame)
         if origin.frame == frame:
             return
         if origin.source == "GLOBAL_POSITION_INT":
