@@ -24,6 +24,7 @@ from enum import StrEnum
 import numpy as np
 
 from mav_observer.errors import InvalidSampleError
+from mav_observer.whiteness import Correlation
 
 #: A bearing whose norm is within this relative distance of 1 is normalised silently;
 #: farther from unit length it is rejected as "far from unit".
@@ -235,6 +236,13 @@ class NoiseLevels:
       ``bearing_latency_learnt``: learnt online or told.
     * ``bias_walk_mps_per_sqrt_s``: the random walk of the bias in use (m/s per square root
       of a second; 0: constant), ``bias_walk_learnt``: learnt online or told.
+    * ``innovation_corr``: the lag-1 correlation of successive innovations once the estimate
+      is down to one filter, and its correlation time
+      and the innovations' size against the noise in use
+      (:class:`~mav_observer.whiteness.Correlation`), or ``None`` (too few yet, or an
+      estimator without it): near 0 when the bearing errors are white, as the covariance
+      assumes; ``Correlation.systematic`` (correlated and not small), the errors are
+      systematic and ``target_h_std_m`` is likely too small.
     """
 
     bearing_noise_deg: float
@@ -248,8 +256,10 @@ class NoiseLevels:
     bearing_latency_learnt: bool = False
     bias_walk_mps_per_sqrt_s: float = 0.0
     bias_walk_learnt: bool = False
+    innovation_corr: Correlation | None = None
 
-    def to_dict(self) -> dict[str, float | int | bool]:
+    def to_dict(self) -> dict[str, float | int | bool | None]:
+        ic = self.innovation_corr
         return {
             "bearing_noise_deg": self.bearing_noise_deg,
             "bearing_noise_learnt": self.bearing_noise_learnt,
@@ -262,4 +272,9 @@ class NoiseLevels:
             "bearing_latency_learnt": self.bearing_latency_learnt,
             "bias_walk_mps_per_sqrt_s": self.bias_walk_mps_per_sqrt_s,
             "bias_walk_learnt": self.bias_walk_learnt,
+            "innovation_lag1": None if ic is None else round(ic.lag1, 4),
+            "innovation_corr_time_s": None
+            if ic is None or ic.corr_time_s is None or not math.isfinite(ic.corr_time_s)
+            else round(ic.corr_time_s, 4),
+            "innovation_var_ratio": None if ic is None else round(ic.var_ratio, 4),
         }

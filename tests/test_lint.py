@@ -30,7 +30,7 @@ MATHS = {
     "noise.py", "latency.py", "smoother.py", "config.py", "streams.py", "single.py",
     "estimators/__init__.py",
     "estimators/base.py", "estimators/paper.py", "estimators/riccati.py",
-    "geodesy.py", "mapexport.py", "gimbalframe.py",
+    "geodesy.py", "mapexport.py", "gimbalframe.py", "whiteness.py",
 }  # fmt: skip
 MESSAGES = {"mavlink/__init__.py", "mavlink/adapters.py", "mavlink/timebase.py",
             "mavlink/tracker.py", "mavlink/out.py"}  # fmt: skip

@@ -56,6 +56,10 @@ def test_every_source_converges_to_the_truth(emitted, bearing: str) -> None:
     assert tgt.final.estimate.status.value == "converged"
     # the target's position in the local frame: the emitter puts it at (40, 30, 0)
     assert np.allclose(tgt.final.target_pos_ned_m, (40.0, 30.0, 0.0), atol=0.05 * 18.0)
+    # the emitter's bearing errors are white: the innovations say so (|lag-1| < 0.1)
+    ic = tgt.noise.innovation_corr
+    assert ic is not None and abs(ic.lag1) < 0.1 and ic.pairs > 30
+    assert "white, as the covariance assumes" in s.text() and "WARNING" not in s.text()
 
 
 def test_real_simulator_flight_finds_the_region_of_interest(tmp_path: Path) -> None:
@@ -110,6 +114,21 @@ def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(
     assert len(said) == 1 and "from 54.3 s" in said[0], said
     told = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="flags"))
     assert "gimbal_angles_body" not in told.events
+
+
+def test_the_sitl_servo_mounts_systematic_bearing_errors_are_flagged() -> None:
+    """The servo mount's pointing errors wander over seconds (``docs/geolocation.md``): the
+    innovations' lag-1 correlation says so (0.99 measured), in the summary's text as a
+    warning and in its JSON, where the emitter's white bearings read below 0.1."""
+    s = rp.replay(str(TLOGS / "ardupilot_sitl_servo_mount_roi.tlog"))
+    ic = s.targets["1/gimbal"].noise.innovation_corr
+    assert ic is not None and ic.lag1 > 0.8 and ic.corr_time_s > 1.0
+    text = s.text()
+    assert "WARNING: innovations from one bearing to the next: correlation" in text
+    assert "target_h_std_m is likely too small" in text
+    noise = s.to_dict()["targets"]["1/gimbal"]["noise"]
+    assert noise["innovation_lag1"] == pytest.approx(ic.lag1, abs=1e-4)
+    assert noise["innovation_corr_time_s"] == pytest.approx(ic.corr_time_s, abs=1e-4)
 
 
 def test_damaged_logs_replay_to_the_end_with_the_damage_counted() -> None:

@@ -28,6 +28,7 @@ from mav_observer.estimators.base import Inputs, Output
 from mav_observer.latency import LatencyLearner, LatencyStateError, Settling, advance
 from mav_observer.noise import NoiseStateError, VelocityNoise
 from mav_observer.samples import NoiseLevels
+from mav_observer.whiteness import InnovationCorrelation
 
 #: The error (m/s, as a white velocity noise) of a velocity interval whose mean comes from
 #: the vehicle's positions (``update_velocity_values``'s ``interval_mean_mps``): GNSS-aided
@@ -108,6 +109,8 @@ class RiccatiEstimator:
         )
         #: whether the latency learnt has settled once (:attr:`settled`)
         self.latency_settled = self.latency is None
+        #: the lag-1 correlation of the one filter's innovations (a diagnostic, not saved)
+        self.whiteness = InnovationCorrelation()
 
     # -- settings in force -----------------------------------------------------------
     def velocity_noise_mps(self) -> float:
@@ -186,6 +189,7 @@ class RiccatiEstimator:
         if self.latency is not None:
             other.latency = self.latency.copy()
         other.settling = self.settling.copy()
+        other.whiteness = self.whiteness.copy()
         other._a_ref = self.output(None).a_mps  # type: ignore[arg-type]
         return other
 
@@ -255,6 +259,17 @@ class RiccatiEstimator:
                     lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))  # type: ignore[union-attr]
             if tau != 0.0:  # the line of sight tau earlier, brought to t_s
                 y = advance(y, x, a, v, tau)
+        if one is not None and len(one.x) == 1:  # the innovation of the one filter
+            x0, x1, x2 = one.x[0]
+            r = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            if r > 0.0:
+                d0, d1, d2 = x0 / r, x1 / r, x2 / r
+                c = y[0] * d0 + y[1] * d1 + y[2] * d2
+                k = 1.0 / math.sqrt(one.noise_var_rad2(prm))  # in units of the noise in use
+                z = ((y[0] - c * d0) * k, (y[1] - c * d1) * k, (y[2] - c * d2) * k)
+                self.whiteness.add(t_s, z)
+        else:
+            self.whiteness.gap()
         if one is not None:
             if single.update(one, y, gap, prm):  # inconsistent: a re-acquisition
                 bank = single.to_bank(one)
@@ -357,6 +372,7 @@ class RiccatiEstimator:
             bearing_latency_learnt=self.latency is not None,
             bias_walk_mps_per_sqrt_s=math.sqrt(q_a),
             bias_walk_learnt=prm.learn_walk,
+            innovation_corr=self.whiteness.correlation(),
         )
 
     @property
