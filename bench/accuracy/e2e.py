@@ -549,6 +549,9 @@ def run_one(
         learnt_velocity_mps_60s=None if noise_60 is None else noise_60.velocity_noise_mps,
         outliers=None if noise_end is None else noise_end.outliers,
         reacquisitions=None if noise_end is None else noise_end.reacquisitions,
+        innovation_lag1=None
+        if noise_end is None or noise_end.innovation_corr is None
+        else noise_end.innovation_corr.lag1,
     )
     if keep_records:
         m.update(records=records, truth=truth)
@@ -585,6 +588,11 @@ def pooled(runs: list[dict]) -> dict[str, float]:
             )
             if all(r.get(k) is not None for r in runs)
         },
+        **(
+            {"innovation_lag1_max": max(r["innovation_lag1"] for r in runs)}
+            if all(r.get("innovation_lag1") is not None for r in runs)
+            else {}
+        ),
         **(
             {
                 "geo_h_med_m": float(np.median([r["geo_h_med_m"] for r in runs])),
