@@ -77,7 +77,7 @@ class InnovationCorrelation:
         if not memory_s > 0.0 or not math.isfinite(memory_s):
             raise ConfigError(f"memory_s must be finite and > 0, got {memory_s!r}")
         self.memory_s = float(memory_s)
-        self._prev: list[float] | None = None
+        self._prev: tuple[float, float, float, float] | None = None  # z and its square
         self._t_prev_s = 0.0
         self._c0 = 0.0  # sum of (|e_k|^2 + |e_k-1|^2) / 2
         self._c1 = 0.0  # sum of e_k . e_k-1
@@ -87,35 +87,39 @@ class InnovationCorrelation:
         self._m = 0.0  # bearings kept
 
     def add(self, t_s: float, z: Sequence[float]) -> None:
-        """One innovation ``z`` at the bearing time ``t_s`` (s, in time order): a vector
-        tangent to the predicted direction (rad) divided by the bearing noise's standard
-        deviation in use (rad), dimensionless."""
-        e_rad = z
-        sq = sum(c * c for c in e_rad)
+        """One innovation ``z`` at the bearing time ``t_s`` (s, in time order): a vector of
+        three components tangent to the predicted direction (rad) divided by the bearing
+        noise's standard deviation in use (rad), dimensionless. Plain floats: it runs at
+        every bearing."""
+        z0, z1, z2 = z
+        sq = z0 * z0 + z1 * z1 + z2 * z2
         if not math.isfinite(sq):
             self._prev = None
             return
-        if self._n >= MIN_PAIRS and sq > CLIP_RMS**2 * self._sq / self._m:
+        m = self._m
+        if self._n >= MIN_PAIRS and sq * m > CLIP_RMS * CLIP_RMS * self._sq:
             self._prev = None  # a gross error: neither compared nor a neighbour
             return
-        if self._m == 0.0:
-            self._t_prev_s = t_s  # the first: nothing to age
-        prev, dt = self._prev, t_s - self._t_prev_s
-        rho = math.exp(-max(dt, 0.0) / self.memory_s)  # (the sums' age, across gaps too)
+        t_prev = t_s if m == 0.0 else self._t_prev_s  # (the first: nothing to age)
+        dt = t_s - t_prev
+        rho = math.exp(-dt / self.memory_s) if dt > 0.0 else 1.0  # (across gaps too)
         self._sq = rho * self._sq + sq
-        self._m = rho * self._m + 1.0
-        self._c0, self._c1, self._n, self._dt = (
-            rho * self._c0,
-            rho * self._c1,
-            rho * self._n,
-            rho * self._dt,
-        )
+        self._m = rho * m + 1.0
+        prev = self._prev
         if prev is not None and 0.0 <= dt <= MAX_GAP_S:
-            self._c0 += 0.5 * (sq + sum(c * c for c in prev))
-            self._c1 += sum(a * b for a, b in zip(e_rad, prev, strict=True))
-            self._n += 1.0
-            self._dt += dt
-        self._prev, self._t_prev_s = list(e_rad), max(t_s, self._t_prev_s)
+            p0, p1, p2, psq = prev
+            self._c0 = rho * self._c0 + 0.5 * (sq + psq)
+            self._c1 = rho * self._c1 + z0 * p0 + z1 * p1 + z2 * p2
+            self._n = rho * self._n + 1.0
+            self._dt = rho * self._dt + dt
+        elif rho != 1.0:
+            self._c0 *= rho
+            self._c1 *= rho
+            self._n *= rho
+            self._dt *= rho
+        self._prev = (z0, z1, z2, sq)
+        if t_s > t_prev or m == 0.0:
+            self._t_prev_s = t_s
 
     def gap(self) -> None:
         """The stream is interrupted (no innovation of the kind measured): the next one is
@@ -141,5 +145,4 @@ class InnovationCorrelation:
         """An independent copy."""
         other = object.__new__(InnovationCorrelation)
         other.__dict__.update(self.__dict__)
-        other._prev = None if self._prev is None else self._prev[:]
         return other
