@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections import Counter
@@ -42,6 +43,7 @@ from mav_observer.mavlink.out import MavlinkOut, OutConfig
 from mav_observer.mavlink.tracker import Tracker
 from mav_observer.records import STATUS_SCHEMA, EstimateRecord
 from mav_observer.settings import Settings
+from mav_observer.whiteness import WARN_LAG1, Correlation
 from mav_observer.zenoh_io import Publications
 
 log = logging.getLogger(__name__)
@@ -61,6 +63,8 @@ class _Target:
     last_record: EstimateRecord | None = None
     estimates: int = 0
     published: int = 0
+    #: the innovations were said to be systematic (re-armed once they are white again)
+    systematic_said: bool = False
 
 
 @dataclass
@@ -310,6 +314,28 @@ class Service:
             return STALE  # the vehicle talks, but this target's bearings stopped
         return tgt.status
 
+    def _say_systematic(self, sysid: int, name: str, tgt: _Target, ic: Correlation) -> None:
+        """Log once, and count as the event ``innovations_systematic``, when a target's
+        innovations turn systematic (:attr:`~mav_observer.whiteness.Correlation.systematic`);
+        said again only after they have been white (lag-1 below half the warning's) since."""
+        if ic.systematic and not tgt.systematic_said:
+            tgt.systematic_said = True
+            self.tracker.events["innovations_systematic"] += 1
+            over = "" if ic.corr_time_s is None else f", correlated over {ic.corr_time_s:.2g} s"
+            log.warning(
+                "vehicle %d: target %r: innovations correlated %.2f from one bearing to the "
+                "next%s, %.2g times the bearing noise in use: the bearing errors are systematic "
+                "(a servo mount's lag, a misaligned gimbal, a tracker sliding on its target), "
+                "target_h_std_m is likely too small (docs/geolocation.md)",
+                sysid,
+                name,
+                ic.lag1,
+                over,
+                math.sqrt(ic.var_ratio),
+            )
+        elif tgt.systematic_said and ic.lag1 < WARN_LAG1 / 2.0:
+            tgt.systematic_said = False
+
     def status_document(self, view: _VehicleView, now: float, *, final: bool = False) -> dict:
         """The status of one vehicle (``docs/schema.md``)."""
         span = max(now - view.status_mono, 1e-9)
@@ -323,6 +349,8 @@ class Service:
             e = None if rec is None else rec.estimate
             obs = self.tracker.observer(view.sysid, name)
             noise = None if obs is None else obs.noise()
+            if noise is not None and noise.innovation_corr is not None:
+                self._say_systematic(view.sysid, name, tgt, noise.innovation_corr)
             observers[name] = {
                 "source": tgt.source,
                 "status": self._target_status(view, tgt, now),

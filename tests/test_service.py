@@ -12,10 +12,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from mavmsg import TLOGS
 
 from mav_observer import records, statefile
 from mav_observer import settings as st
 from mav_observer.mavlink.dialect import codec
+from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.service import Service
 from sim import scenarios
 from sim.emitter import Emitter, EmitterConfig
@@ -87,10 +89,23 @@ class FakePublications:
         self.closed = True
 
 
-def messages(duration_s: float, *, sysid: int = 1, bearing: str = "gimbal", seed: int = 0):
+def messages(
+    duration_s: float,
+    *,
+    sysid: int = 1,
+    bearing: str = "gimbal",
+    seed: int = 0,
+    bearing_noise_deg: float = 0.0,
+):
     em = Emitter(
         scenarios.orbit(),
-        EmitterConfig(duration_s=duration_s, sysid=sysid, bearing=bearing, seed=seed),
+        EmitterConfig(
+            duration_s=duration_s,
+            sysid=sysid,
+            bearing=bearing,
+            seed=seed,
+            bearing_noise_deg=bearing_noise_deg,
+        ),
     )
     mav = codec()
     out = []
@@ -305,3 +320,41 @@ def test_memory_stays_bounded_per_vehicle() -> None:
     assert obs is not None
     assert obs.buffered["bearing"] < 10 and obs.buffered["velocity"] < 10
     assert len(veh.attitude._h) <= 128
+
+
+def test_systematic_bearing_errors_are_said_once_and_counted(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The shared SITL log's servo mount points with errors that wander over seconds
+    (docs/geolocation.md): the service logs once that the target's innovations are
+    systematic, counts the event ``innovations_systematic`` and its status carries the
+    correlation. The emitter's bearings say nothing: white at 0.5 deg; noise-free, correlated
+    but thousands of times smaller than the noise learnt, which covers them."""
+    items = list(TlogReader(str(TLOGS / "ardupilot_sitl_servo_mount_roi.tlog")))
+    clock = Clock()
+    reader = ScriptReader(items, clock, items[0][0])
+    pubs = FakePublications()
+    settings = st.resolve(None, {})
+    svc = Service(settings, reader, pubs, clock=clock, monotonic=clock)  # type: ignore[arg-type]
+    with caplog.at_level("WARNING", logger="mav_observer.service"):
+        svc.run(duration_s=items[-1][0] - items[0][0] + 2.0)
+    said = [r.getMessage() for r in caplog.records if "systematic" in r.getMessage()]
+    assert len(said) == 1 and "target 'gimbal'" in said[0], said
+    last = pubs.statuses[-1][1]
+    assert last["events"]["innovations_systematic"] == 1
+    assert last["observers"]["gimbal"]["noise"]["innovation_lag1"] > 0.8
+    for noise_deg in (0.5, 0.0):
+        items, em = messages(120.0, bearing_noise_deg=noise_deg)
+        svc, pubs, _ = make_service(items, em)
+        with caplog.at_level("WARNING", logger="mav_observer.service"):
+            caplog.clear()
+            svc.run(duration_s=121.0)
+        assert not [r for r in caplog.records if "systematic" in r.getMessage()]
+        last = pubs.statuses[-1][1]
+        assert "innovations_systematic" not in last["events"]
+        noise = last["observers"]["gimbal"]["noise"]
+        if noise_deg:
+            assert abs(noise["innovation_lag1"]) < 0.1
+            assert noise["innovation_var_ratio"] == pytest.approx(1.0, abs=0.3)
+        else:
+            assert noise["innovation_lag1"] > 0.5 and noise["innovation_var_ratio"] < 1e-3
