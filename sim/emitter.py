@@ -107,6 +107,11 @@ class EmitterConfig:
     uniformly random axis perpendicular to it, as a tracker locked on the wrong thing would
     report. The truth keeps the true line of sight. With ``outlier_prob`` 0 no random number
     is drawn for outliers: a seed gives the same messages as before the knob existed.
+    ``bearing_noise_dof``: the bearing noise's shape: ``inf`` (the default) Gaussian; a
+    finite number (> 2) of degrees of freedom draws each of its two tangent components from a
+    Student-t instead, scaled to the same standard deviation ``bearing_noise_deg``: heavy
+    tails without separate outliers (3: a per-axis Fisher information twice the Gaussian's,
+    its Cramér-Rao bound that of Gaussian noise of ``bearing_noise_deg / sqrt(2)``).
     """
 
     bearing: str = "gimbal"
@@ -117,6 +122,7 @@ class EmitterConfig:
     bearing_hz: float = 10.0
     background_hz: float = 0.0
     bearing_noise_deg: float = 0.0
+    bearing_noise_dof: float = math.inf
     velocity_noise_mps: float = 0.0
     drop_prob: float = 0.0
     outlier_prob: float = 0.0
@@ -146,6 +152,10 @@ class EmitterConfig:
         if not self.outlier_min_deg <= self.outlier_max_deg <= 180.0:
             raise ValueError(
                 f"outlier_max_deg must be in [outlier_min_deg, 180], got {self.outlier_max_deg}"
+            )
+        if not self.bearing_noise_dof > 2.0:
+            raise ValueError(
+                f"bearing_noise_dof must be > 2 (inf: Gaussian), got {self.bearing_noise_dof}"
             )
         if self.latency_s < 0.0 or self.duration_s <= 0.0:
             raise ValueError("latency_s must be >= 0 and duration_s > 0")
@@ -304,9 +314,30 @@ class Emitter:
         # outlier draws only when the knob is on: with it off the random stream is unchanged
         if cfg.outlier_prob > 0 and self.rng.random() < cfg.outlier_prob:
             return self._outlier(y)
+        if cfg.bearing_noise_deg > 0 and math.isfinite(cfg.bearing_noise_dof):
+            return self._student_t(y)
         if cfg.bearing_noise_deg > 0:
             y = perturb_bearings(y[None, :], math.radians(cfg.bearing_noise_deg), self.rng)[0]
         return y
+
+    def _student_t(self, y: np.ndarray) -> np.ndarray:
+        """``y`` (unit) turned by a tangent vector whose two components along an orthonormal
+        basis perpendicular to it are Student-t (``bearing_noise_dof``), each of standard
+        deviation ``bearing_noise_deg``."""
+        cfg = self.config
+        nu = cfg.bearing_noise_dof
+        scale = math.radians(cfg.bearing_noise_deg) * math.sqrt((nu - 2.0) / nu)
+        a, b = scale * self.rng.standard_t(nu, 2)
+        helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(y, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(y, e1)
+        tangent = a * e1 + b * e2
+        theta = float(np.linalg.norm(tangent))
+        if theta == 0.0:
+            return y
+        out = math.cos(theta) * y + math.sin(theta) * tangent / theta
+        return out / np.linalg.norm(out)
 
     def _outlier(self, y: np.ndarray) -> np.ndarray:
         """``y`` (unit) turned by an angle uniform in [outlier_min_deg, outlier_max_deg] about

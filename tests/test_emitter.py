@@ -124,6 +124,32 @@ def test_bearing_outliers_are_a_share_of_gross_errors_off_the_true_line_of_sight
     assert np.median(err[~out]) == pytest.approx(sigma * math.sqrt(2 * math.log(2)), rel=0.1)
 
 
+def test_student_t_bearing_noise_has_the_same_spread_and_heavier_tails() -> None:
+    """``bearing_noise_dof`` 3: the angle off the true line of sight has the Gaussian's
+    mean square (2 sigma^2 over the two tangent axes) but far more errors beyond 4 sigma."""
+    sigma = 0.5
+    sc = scenarios.orbit(duration_s=600.0)
+    err = {
+        dof: bearing_errors_deg(
+            Emitter(
+                sc,
+                EmitterConfig(
+                    duration_s=600.0, bearing_noise_deg=sigma, bearing_noise_dof=dof, seed=3
+                ),
+            )
+        )
+        for dof in (math.inf, 3.0)
+    }
+    for e in err.values():
+        assert len(e) == 6000
+    assert float(np.mean(err[math.inf] ** 2)) == pytest.approx(2 * sigma**2, rel=0.06)
+    # the t's variance converges slowly (its fourth moment is infinite): a loose check
+    assert float(np.mean(err[3.0] ** 2)) == pytest.approx(2 * sigma**2, rel=0.35)
+    far = {dof: int(np.sum(e > 4.0 * sigma)) for dof, e in err.items()}
+    assert far[math.inf] <= 8 and far[3.0] >= 30, far  # Rayleigh: 3e-4 of 6000; t(3): ~1 %
+    assert np.median(err[3.0]) < np.median(err[math.inf])  # the mass moves to the centre
+
+
 def test_no_outliers_leaves_the_random_stream_and_the_frames_as_they_were() -> None:
     base = {"duration_s": 30.0, "bearing_noise_deg": 0.5, "velocity_noise_mps": 0.1}
     base |= {"drop_prob": 0.1, "seed": 5}
@@ -163,6 +189,8 @@ def test_bad_configuration_is_refused() -> None:
         EmitterConfig(outlier_min_deg=-1.0)
     with pytest.raises(ValueError, match="outlier_max_deg"):
         EmitterConfig(outlier_min_deg=10.0, outlier_max_deg=5.0)
+    with pytest.raises(ValueError, match="bearing_noise_dof must be > 2"):
+        EmitterConfig(bearing_noise_dof=2.0)
     with pytest.raises(ValueError, match="n=2"):
         Emitter(scenarios.planar(), EmitterConfig())
 
