@@ -82,12 +82,17 @@ class E2ECase:
 
     @property
     def bearing_deg(self) -> float:
-        """The bearing noise of the CRLB (degrees): the Gaussian noise's standard deviation;
-        outliers (``outlier_prob``) are not counted, the bound is that of the clean stream;
-        Student-t noise (``bearing_noise_dof`` finite) as the Gaussian noise of the same
-        per-axis Fisher information, ``(nu + 1) nu / ((nu + 3) (nu - 2))`` over the
-        variance."""
-        sd = float(self.emitter.get("bearing_noise_deg", 0.0))
+        """The stream's bearing noise, its standard deviation per tangent axis (degrees):
+        outliers (``outlier_prob``) are not counted."""
+        return float(self.emitter.get("bearing_noise_deg", 0.0))
+
+    @property
+    def bound_bearing_deg(self) -> float:
+        """The bearing noise of the CRLB (degrees): :attr:`bearing_deg`, the bound
+        that of the clean stream; Student-t noise (``bearing_noise_dof`` finite) as the
+        Gaussian noise of the same per-axis Fisher information,
+        ``(nu + 1) nu / ((nu + 3) (nu - 2))`` over the variance."""
+        sd = self.bearing_deg
         nu = float(self.emitter.get("bearing_noise_dof", math.inf))
         if math.isfinite(nu):
             sd /= math.sqrt((nu + 1.0) * nu / ((nu + 3.0) * (nu - 2.0)))
@@ -104,7 +109,7 @@ class E2ECase:
         ``velocity_gm_tau_s``; 0 when off, and the bound is then the constant-bias one)."""
         gm = float(self.realism.get("velocity_gm_std_mps", 0.0))
         out = {
-            "sigma_rad": math.radians(self.bearing_deg),
+            "sigma_rad": math.radians(self.bound_bearing_deg),
             "q_x": self.velocity_white_mps**2 * velocity_dt_s,
         }
         if gm > 0.0:
