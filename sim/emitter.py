@@ -161,6 +161,14 @@ class EmitterConfig:
             raise ValueError("latency_s must be >= 0 and duration_s > 0")
 
 
+def _tangent_basis(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An orthonormal basis ``(e1, e2)`` of the plane perpendicular to the unit ``y``."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(y, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(y, e1)
+
+
 @dataclass(frozen=True)
 class Emission:
     """One message on the wire: when it leaves (simulated seconds from the start) and its bytes."""
@@ -328,10 +336,7 @@ class Emitter:
         nu = cfg.bearing_noise_dof
         scale = math.radians(cfg.bearing_noise_deg) * math.sqrt((nu - 2.0) / nu)
         a, b = scale * self.rng.standard_t(nu, 2)
-        helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        e1 = np.cross(y, helper)
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(y, e1)
+        e1, e2 = _tangent_basis(y)
         tangent = a * e1 + b * e2
         theta = float(np.linalg.norm(tangent))
         if theta == 0.0:
@@ -345,11 +350,7 @@ class Emitter:
         cfg = self.config
         angle = math.radians(self.rng.uniform(cfg.outlier_min_deg, cfg.outlier_max_deg))
         phi = self.rng.uniform(0.0, 2.0 * math.pi)
-        # an orthonormal basis (e1, e2) of the plane perpendicular to y
-        helper = np.array([1.0, 0.0, 0.0]) if abs(y[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        e1 = np.cross(y, helper)
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(y, e1)
+        e1, e2 = _tangent_basis(y)
         axis = math.cos(phi) * e1 + math.sin(phi) * e2
         # Rodrigues' rotation of y about an axis perpendicular to it
         out = math.cos(angle) * y + math.sin(angle) * np.cross(axis, y)
