@@ -142,13 +142,19 @@ def test_the_end_to_end_bound_counts_the_gauss_markov_velocity_error() -> None:
 
     for name, case in e2e.CASES.items():
         noise = case.bound_noise(0.1)
-        assert noise["sigma_rad"] == pytest.approx(math.radians(case.bearing_deg))
+        assert noise["sigma_rad"] == pytest.approx(math.radians(case.bound_bearing_deg))
         assert noise["q_x"] == pytest.approx(case.velocity_white_mps**2 * 0.1)
         if case.realism.get("velocity_gm_std_mps", 0.0) > 0.0:
             assert (noise["gm_std_mps"], noise["gm_tau_s"]) == (0.1, 60.0), name
         else:
             assert set(noise) == {"sigma_rad", "q_x"}, name
     assert "gm_std_mps" in e2e.CASES["velocity_coloured"].bound_noise(0.1)
+    # Student-t noise of 3 degrees of freedom: twice the Gaussian's Fisher information per
+    # axis, the bound that of Gaussian noise 1/sqrt(2) as large; every other case's own
+    t3 = e2e.CASES["noise_student3"]
+    assert t3.bearing_deg == 0.5
+    assert t3.bound_bearing_deg == pytest.approx(0.5 / math.sqrt(2.0))
+    assert e2e.CASES["noise_2deg"].bound_bearing_deg == e2e.CASES["noise_2deg"].bearing_deg
 
 
 def test_time_to_stay_below_on_known_curves() -> None:
