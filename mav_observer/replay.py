@@ -31,7 +31,6 @@ from mav_observer.mavlink.tracker import Tracker, TrackerConfig
 from mav_observer.observer import BEARING_NOISE_PRIOR_DEG
 from mav_observer.records import CSV_COLUMNS, EstimateRecord
 from mav_observer.samples import NoiseLevels, Status
-from mav_observer.whiteness import WARN_LAG1
 
 log = logging.getLogger(__name__)
 
@@ -582,29 +581,4 @@ def _whiteness_lines(nz: NoiseLevels) -> list[str]:
     """The summary's line on the innovations' lag-1 correlation (:mod:`~mav_observer.whiteness`)
     with its warning, or none before it is known."""
     ic = nz.innovation_corr
-    if ic is None:
-        return []
-    over = (
-        ""
-        if ic.corr_time_s is None
-        else " (correlated over ever longer)"
-        if math.isinf(ic.corr_time_s)
-        else f" (correlated over {ic.corr_time_s:.2g} s)"
-    )
-    size = f", {math.sqrt(ic.var_ratio):.2g} times the noise in use"
-    head = f"innovations from one bearing to the next: correlation {ic.lag1:.2f}{over}{size}"
-    if not ic.systematic:
-        return [
-            f"  {head}: "
-            + (
-                "white, as the covariance assumes"
-                if ic.lag1 < WARN_LAG1
-                else "correlated but small against the noise in use, which covers them"
-            )
-        ]
-    return [
-        f"  WARNING: {head}: the bearing errors are systematic (a servo mount's lag, "
-        "a misaligned gimbal, a tracker sliding on its target), not noise; "
-        "target_h_std_m is likely too small "
-        "(docs/geolocation.md, 'When the sigma is not to be trusted')"
-    ]
+    return [] if ic is None else [f"  {ic.describe()}"]

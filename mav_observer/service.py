@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import threading
 import time
 from collections import Counter
@@ -321,18 +320,7 @@ class Service:
         if ic.systematic and not tgt.systematic_said:
             tgt.systematic_said = True
             self.tracker.events["innovations_systematic"] += 1
-            over = "" if ic.corr_time_s is None else f", correlated over {ic.corr_time_s:.2g} s"
-            log.warning(
-                "vehicle %d: target %r: innovations correlated %.2f from one bearing to the "
-                "next%s, %.2g times the bearing noise in use: the bearing errors are systematic "
-                "(a servo mount's lag, a misaligned gimbal, a tracker sliding on its target), "
-                "target_h_std_m is likely too small (docs/geolocation.md)",
-                sysid,
-                name,
-                ic.lag1,
-                over,
-                math.sqrt(ic.var_ratio),
-            )
+            log.warning("vehicle %d: target %r: %s", sysid, name, ic.describe())
         elif tgt.systematic_said and ic.lag1 < WARN_LAG1 / 2.0:
             tgt.systematic_said = False
 

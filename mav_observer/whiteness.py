@@ -67,6 +67,33 @@ class Correlation:
         ``lag1 >= WARN_LAG1`` and ``var_ratio >= WARN_VAR_RATIO``."""
         return self.lag1 >= WARN_LAG1 and self.var_ratio >= WARN_VAR_RATIO
 
+    def describe(self) -> str:
+        """One line for people (replay's summary, the service's log): the figures and
+        the verdict, ``WARNING: ...`` when :attr:`systematic`."""
+        over = (
+            ""
+            if self.corr_time_s is None
+            else " (correlated over ever longer)"
+            if math.isinf(self.corr_time_s)
+            else f" (correlated over {self.corr_time_s:.2g} s)"
+        )
+        head = (
+            f"innovations from one bearing to the next: correlation {self.lag1:.2f}{over}, "
+            f"{math.sqrt(self.var_ratio):.2g} times the noise in use"
+        )
+        if not self.systematic:
+            return f"{head}: " + (
+                "white, as the covariance assumes"
+                if self.lag1 < WARN_LAG1
+                else "correlated but small against the noise in use, which covers them"
+            )
+        return (
+            f"WARNING: {head}: the bearing errors are systematic (a servo mount's lag, "
+            "a misaligned gimbal, a tracker sliding on its target), not noise; "
+            "target_h_std_m is likely too small "
+            "(docs/geolocation.md, 'When the sigma is not to be trusted')"
+        )
+
 
 class InnovationCorrelation:
     """The lag-1 correlation of a stream of innovation vectors, with forgetting.
