@@ -24,9 +24,10 @@ The covariance is the inverse of the Gauss-Newton normal matrix of the whitened 
 residuals' variance per degree of freedom (when ``sigma_rad`` is not known well).
 
 :func:`displacement_at` computes ``D_k`` from velocity samples (trapezoid rule), or, where the
-velocity is sparse (samples more than 0.2 s apart), from the position's differences less their
+positions are given, from the position's differences less their
 mean drift from the integrated velocity (so that a constant velocity error stays in ``a``),
-as the tracker does for LOCAL_POSITION_NED (``docs/frames.md``, "Sparse velocity").
+as the tracker does for LOCAL_POSITION_NED (``docs/frames.md``, "Velocity from the
+positions").
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ import numpy as np
 
 from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
 
-#: Velocity samples further apart than this (s) use the position's change (when given).
-SPARSE_VELOCITY_S = 0.2
+#: Velocity samples further apart than this (s) use the position's change (when given):
+#: every interval, at any rate, as the tracker does.
+SPARSE_VELOCITY_S = 0.0
 #: An interval whose position change is further than ``RESET_GATE_M + RESET_GATE_MPS2 dt^2``
 #: from the velocity's trapezoid (drift removed) is a position reset: the trapezoid is used.
 RESET_GATE_M = 0.5

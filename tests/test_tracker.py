@@ -8,6 +8,7 @@ import pytest
 from mavmsg import T0_UNIX, landing_target_fields, message
 
 from mav_observer.errors import ConfigError, StateError
+from mav_observer.mavlink import tracker as tracker_mod
 from mav_observer.mavlink.dialect import codec
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
 from mav_observer.observer import ObserverConfig
@@ -485,6 +486,40 @@ def test_sparse_velocity_takes_the_displacement_from_the_position() -> None:
             np.testing.assert_allclose(mean, [chord[j] - err[j] for j in range(3)], atol=0.05)
         prev = (t, pos)
     assert "position_reset" not in tr.events
+
+
+def _home_orbit_at_10hz() -> tuple[float, str]:
+    """A vehicle circling its home point at 10 Hz of LOCAL_POSITION_NED whose velocity is off
+    its (true) positions by a constant plus a wander of 0.3 m/s over 50 s (a real EKF's
+    velocity against its GNSS-held positions); bearings from the home source. Returns the
+    largest distance (m) of the estimated home from the true one over the last 60 s, and
+    the final status."""
+    tr = Tracker(TrackerConfig(sources=("home",)))
+    tr.handle(T0_UNIX, _home(0.0, 0.0, 0.0))
+    om, rad = 2 * math.pi / 30.0, 40.0
+    recs = []
+    for k in range(1800):
+        t = 0.1 * k
+        pos = (rad * math.cos(om * t) + 20.0, rad * math.sin(om * t), -15.0)
+        wander = 0.3 * math.sin(2 * math.pi * t / 50.0)
+        vel = (-rad * om * math.sin(om * t) + 0.5 + wander,
+               rad * om * math.cos(om * t) - 0.3 + wander, 0.0)  # fmt: skip
+        recs += tr.handle(T0_UNIX + t + 0.001, lpn(100_000 + 100 * k, pos, vel))
+    recs += tr.flush()
+    off = max(float(np.linalg.norm(r.target_pos_ned_m)) for r in recs[-600:])
+    return off, recs[-1].estimate.status.value
+
+
+def test_a_dense_stream_takes_the_displacement_from_the_position_too(monkeypatch) -> None:
+    # at 10 Hz as at 1 Hz: the velocity's wander against the positions does not reach the
+    # estimate (the positions are what the target is fixed against)
+    off, status = _home_orbit_at_10hz()
+    assert off < 0.01 and status == "converged"
+    # the same flight with the velocity integrated instead (no interval short enough for
+    # the positions): the wander moves the estimated home by metres
+    monkeypatch.setattr(tracker_mod, "SPARSE_VELOCITY_MAX_S", 0.05)
+    off, status = _home_orbit_at_10hz()
+    assert off > 0.5 and status != "converged"
 
 
 def test_the_drift_is_learnt_from_the_first_interval_and_then_kept() -> None:
