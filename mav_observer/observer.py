@@ -237,8 +237,9 @@ class BiasObserver:
     def predicted_displacement_m(self, t0_s: float, t1_s: float) -> list[float] | None:
         """The integral of ``v`` (the paper's, ``-u``) from ``t0_s`` to ``t1_s`` (m) as the
         estimates are predicted with it: the velocity samples, and past the latest the held
-        velocity or a sparse stream's trend (``docs/frames.md``, "Sparse velocity"); ``None``
-        before any velocity. ``x`` moves by it plus ``a`` times the span."""
+        velocity or, for intervals known from the positions, the latest trend
+        (``docs/frames.md``, "Velocity from the positions"); ``None`` before any velocity.
+        ``x`` moves by it plus ``a`` times the span."""
         if not self._streams.velocities:
             return None
         return self._streams.predicted_displacement(t0_s, t1_s)
@@ -340,9 +341,9 @@ class BiasObserver:
         ``interval_mean_mps``: the mean of ``v`` (m/s, the paper's sign) over the interval
         from the previous velocity sample to this one, when it is known better than the
         average of the two samples (for a vehicle, from the change of its position: see
-        ``docs/frames.md``, "Sparse velocity"). The velocity on that interval is then the
-        linear interpolation of the two samples shifted by a constant so that its mean is
-        that (the samples' shape, the positions' displacement: on a smooth turn the shape
+        ``docs/frames.md``, "Velocity from the positions"). The velocity on that interval is
+        then the linear interpolation of the two samples shifted by a constant so that its
+        mean is that (the samples' shape, the positions' displacement: on a smooth turn the shape
         is far closer than a straight line, and the displacement is exact)."""
         self._accept("velocity", t_s, v_mps)
         if interval_mean_mps is not None:

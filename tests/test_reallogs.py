@@ -54,3 +54,17 @@ def test_the_records_scored_are_those_of_the_truths_clock_epoch() -> None:
     got = reallogs.epoch_records([*first, *second, *third], np.array(truth_t))
     assert {r["tag"] for r in got} == {"second"} and len(got) == 300
     assert reallogs.epoch_records([], np.array(truth_t)) == []
+
+
+def test_the_sigma_is_honest_on_the_simulator_log_with_an_injected_target(tmp_path: Path) -> None:
+    # the SITL log at 10 Hz: its velocity wanders against its positions (0.037 m/s RMS),
+    # which, integrated, put the estimate 0.2-0.5 m off along its range at a sigma of a few
+    # cm (this seed: 94 % within twice the sigma after convergence, 0.94 % of the range
+    # over the last third); the positions' displacement keeps the wander out ("Velocity from
+    # the positions", docs/frames.md): 100 %, 0.15 %
+    log = next(p for p in LOGS if p.name == "ardupilot_sitl_servo_mount_roi.tlog")
+    r = reallogs.run_log(log, seed=7, workdir=tmp_path)
+    assert r["conv_n"] > 300, r
+    assert r["within_2sd_conv"] >= 0.99, r
+    assert r["within_2sd_last_third"] >= 0.99, r
+    assert r["product_rel_rms"] < 0.005, r

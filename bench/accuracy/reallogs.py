@@ -109,9 +109,11 @@ def run_log(
     observer: dict[str, Any] | None = None,
     workdir: Path | None = None,
     live: bool = False,
+    keep: bool = False,
 ) -> dict[str, Any]:
     """Inject, replay, fit and score one log (``live``: ``replay --live``, what the service
-    publishes, instead of replay's default)."""
+    publishes, instead of replay's default; ``keep``: the scored records, with the truth
+    interpolated to them, under ``trace``)."""
     res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "injected.tlog"
@@ -152,6 +154,20 @@ def run_log(
     sel_e = _last_third(te, t0, t1)
     prod = math.sqrt(float(np.mean(rel[sel_e] ** 2))) if sel_e.any() else math.inf
     prod_max = float(np.max(rel[sel_e])) if sel_e.any() else math.inf
+    # the sigma's honesty: the horizontal error within twice the published horizontal
+    # standard deviation (the DRMS of ``rel_pos_std_ned_m``'s north and east, the same as
+    # ``target_h_std_m``), over the last third and from the first ``converged`` on
+    sd_h = np.array(
+        [math.nan if r["rel_pos_std_ned_m"] is None else math.hypot(*r["rel_pos_std_ned_m"][:2])
+         for r in est],
+        dtype=float,
+    ).reshape(-1)[inside]  # fmt: skip
+    err_h = np.hypot(*(xe - xi)[:, :2].T)
+    within = err_h <= 2.0 * sd_h
+    status = np.array([r["status"] for r in est])[inside]
+    conv = np.nonzero(status == "converged")[0]
+    within_last = float(np.mean(within[sel_e])) if sel_e.any() else math.nan
+    within_conv = float(np.mean(within[conv[0] :])) if len(conv) else math.nan
 
     # the batch optimum over the same bearings and velocity
     lpn = flight.local_position[ep]
@@ -176,7 +192,15 @@ def run_log(
             xi_s = np.column_stack([np.interp(sm.t_s[ok], tt, xt[:, i]) for i in range(3)])
             rel_s = np.linalg.norm(xs - xi_s, axis=1) / np.linalg.norm(xi_s, axis=1)
             smoothed = math.sqrt(float(np.mean(rel_s**2)))
+    trace = {
+        "t_s": te,
+        "err_ned_m": xe - xi,
+        "sd_h_m": sd_h,
+        "status": status,
+        "records": [r for r, k in zip(est, inside, strict=True) if k],
+    }
     return {
+        **({"trace": trace} if keep else {}),
         "log": log.name,
         "seed": seed,
         "sysid": res.sysid,
@@ -187,6 +211,10 @@ def run_log(
         "range_last_third_m": float(np.mean(rng_t[sel_t])),
         "product_rel_rms": prod,
         "product_rel_max": prod_max,
+        "within_2sd_last_third": within_last,
+        "within_2sd_conv": within_conv,
+        "conv_n": int(len(within) - conv[0]) if len(conv) else 0,
+        "converged_share": float(np.mean(status == "converged")) if len(status) else 0.0,
         "batch_rel_rms": batch,
         "ratio": prod / batch if batch > 0 else math.inf,
         "smoothed_rel_rms_all": smoothed,
@@ -227,10 +255,18 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         b = float(np.mean([r["batch_rel_rms"] for r in rs]))
         sm = float(np.mean([r["smoothed_rel_rms_all"] for r in rs]))
         ba = float(np.mean([r["batch_rel_rms_all"] for r in rs]))
+        conv_n = sum(r["conv_n"] for r in rs)
         out.append(
             {
                 "log": log,
                 "seeds": len(rs),
+                "within_last": float(np.nanmean([r["within_2sd_last_third"] for r in rs])),
+                "within_conv": (
+                    sum(r["within_2sd_conv"] * r["conv_n"] for r in rs if r["conv_n"]) / conv_n
+                    if conv_n
+                    else math.nan
+                ),
+                "conv_share": float(np.mean([r["converged_share"] for r in rs])),
                 "lpn_hz": rs[0]["lpn_hz"],
                 "range_m": rs[0]["range_last_third_m"],
                 "product": p,
@@ -244,6 +280,10 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             }
         )
     return out
+
+
+def _share(x: float) -> str:
+    return "-" if math.isnan(x) else f"{100 * x:.0f} %"
 
 
 #: What the logs given on the command line are, by default (``--about``).
@@ -288,13 +328,18 @@ def markdown(
         "constant `a` over the whole log (`mav_observer.batch`, told the true noise, the same "
         "velocity and positions) is the offline reference. Position RMS relative to the range "
         "(RMS of `|error| / range`) over the last third of the injected span, mean over seeds. "
-        "The last columns: `replay --smooth` (batch fits on windows, the product's "
-        "post-flight answer) against the batch fit, both over the whole injected span.",
+        "Then `replay --smooth` (batch fits on windows, the product's "
+        "post-flight answer) against the batch fit, both over the whole injected span. The "
+        "last columns: the sigma's honesty, the share of the product's estimates whose "
+        "horizontal error is within twice `target_h_std_m` (about 95 % for an honest sigma), "
+        "over the last third and from the first estimate `converged` on (pooled over the "
+        "seeds), and the share of estimates `converged`.",
         "",
         "| log | LOCAL_POSITION_NED | range, last third | product (worst seed) | batch least "
         "squares | product / batch | worst single error, last third | smoothed, whole span "
-        "| batch, whole span | smoothed / batch |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| batch, whole span | smoothed / batch | within 2 sigma, last third | within 2 sigma, "
+        "after convergence | converged |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in s:
         lines.append(
@@ -302,7 +347,8 @@ def markdown(
             f"| {100 * r['product']:.2f} % ({100 * r['product_worst']:.2f} %) "
             f"| {100 * r['batch']:.2f} % | {r['ratio']:.2f}x | {100 * r['max']:.1f} % "
             f"| {100 * r['smoothed_all']:.2f} % | {100 * r['batch_all']:.2f} % "
-            f"| {r['smoothed_ratio']:.2f}x |"
+            f"| {r['smoothed_ratio']:.2f}x | {_share(r['within_last'])} "
+            f"| {_share(r['within_conv'])} | {100 * r['conv_share']:.0f} % |"
         )
     if other is None:
         lines += [
