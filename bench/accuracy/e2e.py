@@ -759,7 +759,14 @@ def markdown(
             "",
             "The CRLB is that of the stream's true noise: white bearing and velocity noise "
             "and the velocity error's Gauss-Markov part (velocity_coloured: the posterior "
-            "bound of the state augmented with it); a model error (gimbal_lag) is not in it.",
+            "bound of the state augmented with it); a model error (gimbal_lag) is not in it. "
+            "It is the bound of the velocity and the bearings alone: the product also takes "
+            "the vehicle's displacement from LOCAL_POSITION_NED's positions, which the "
+            "emitter keeps true (GNSS-like), so where the velocity carries an error that the "
+            "positions do not (velocity_coloured) it can do better than that bound "
+            '([frames.md](frames.md), "Velocity from the positions"); its bias RMS is then '
+            "against the constant part, while the estimate holds the constant plus the "
+            "Gauss-Markov part's value when the positions' drift was learnt.",
             "",
             table({c: res[c] for c in knobs}),
             "",
