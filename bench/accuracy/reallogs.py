@@ -361,8 +361,8 @@ def markdown(
         lines += [
             "",
             "The batch fit assumes one constant `a` over the whole flight: where the log's own "
-            "velocity drifts against its positions over minutes (the simulator flight, "
-            "Phoenix), the filter, which forgets slowly, does better than that fit.",
+            "velocity drifts against its positions over minutes (the Phoenix log), the "
+            "filter, which forgets slowly, does better than that fit.",
         ]
     else:
         lines += [
