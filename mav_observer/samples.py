@@ -199,6 +199,15 @@ class Estimate:
     range_std_m: float | None = None
     nis: float | None = None
 
+    def with_a(self, a_mps: np.ndarray) -> Estimate:
+        """This estimate with ``a_mps`` (m/s, a read-only array) in place of its own, every
+        other field as it is (copied, not validated again: the per-bearing path)."""
+        other = object.__new__(Estimate)
+        for name in Estimate.__slots__:
+            object.__setattr__(other, name, getattr(self, name))
+        object.__setattr__(other, "a_mps", a_mps)
+        return other
+
     def to_dict(self) -> dict[str, object]:
         """Plain JSON-serialisable form."""
         return {

@@ -89,3 +89,25 @@ def test_estimate_to_dict_is_json() -> None:
     assert d["status"] == "not observable"
     assert d["x_m"] == [1.0, 2.0, 3.0]
     assert d["velocity_age_s"] is None
+
+
+def test_estimate_with_a_replaces_only_the_bias() -> None:
+    e = Estimate(
+        t_s=1.0,
+        x_m=np.array([1.0, 2.0, 3.0]),
+        a_mps=np.zeros(3),
+        range_m=math.sqrt(14.0),
+        excitation=0.2,
+        cond_m=3.0,
+        status=Status.CONVERGED,
+        corrected=True,
+        bearing_age_s=0.0,
+        velocity_age_s=0.1,
+        correction_rel=0.01,
+        x_std_m=np.array([0.1, 0.2, 0.3]),
+        nis=1.5,
+    )
+    f = e.with_a(np.array([0.5, -0.3, 0.0]))
+    assert f.a_mps.tolist() == [0.5, -0.3, 0.0] and e.a_mps.tolist() == [0.0, 0.0, 0.0]
+    d, g = e.to_dict(), f.to_dict()
+    assert {k for k in d if d[k] != g[k]} == {"a_mps"}

@@ -36,7 +36,7 @@ import logging
 import math
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 from mav_observer import geodesy
@@ -1245,7 +1245,7 @@ class Tracker:
             return est
         a = est.a_mps + corr  # a new array (numpy's), read-only as the estimate's are
         a.setflags(write=False)
-        return replace(est, a_mps=a)
+        return est.with_a(a)
 
     def _publish_committed(
         self, veh: _Vehicle, out: list[EstimateRecord], *, end: bool = False
