@@ -71,8 +71,9 @@ def test_errors_share_the_project_base_class() -> None:
         BearingSample(0.0, [math.nan, 0.0, 1.0])
 
 
-def test_estimate_to_dict_is_json() -> None:
-    e = Estimate(
+def _estimate(**fields: object) -> Estimate:
+    """An estimate at 1 s of a target 3.7 m away, ``fields`` replacing the defaults."""
+    base: dict[str, object] = dict(
         t_s=1.0,
         x_m=np.array([1.0, 2.0, 3.0]),
         a_mps=np.zeros(3),
@@ -85,6 +86,11 @@ def test_estimate_to_dict_is_json() -> None:
         velocity_age_s=None,
         correction_rel=0.01,
     )
+    return Estimate(**{**base, **fields})  # type: ignore[arg-type]
+
+
+def test_estimate_to_dict_is_json() -> None:
+    e = _estimate()
     d = json.loads(json.dumps(e.to_dict()))
     assert d["status"] == "not observable"
     assert d["x_m"] == [1.0, 2.0, 3.0]
@@ -92,21 +98,7 @@ def test_estimate_to_dict_is_json() -> None:
 
 
 def test_estimate_with_a_replaces_only_the_bias() -> None:
-    e = Estimate(
-        t_s=1.0,
-        x_m=np.array([1.0, 2.0, 3.0]),
-        a_mps=np.zeros(3),
-        range_m=math.sqrt(14.0),
-        excitation=0.2,
-        cond_m=3.0,
-        status=Status.CONVERGED,
-        corrected=True,
-        bearing_age_s=0.0,
-        velocity_age_s=0.1,
-        correction_rel=0.01,
-        x_std_m=np.array([0.1, 0.2, 0.3]),
-        nis=1.5,
-    )
+    e = _estimate(status=Status.CONVERGED, velocity_age_s=0.1, x_std_m=np.ones(3), nis=1.5)
     f = e.with_a(np.array([0.5, -0.3, 0.0]))
     assert f.a_mps.tolist() == [0.5, -0.3, 0.0] and e.a_mps.tolist() == [0.0, 0.0, 0.0]
     d, g = e.to_dict(), f.to_dict()
