@@ -43,6 +43,15 @@ def lerp(p: Sample, q: Sample, t: float) -> list[float]:
     return [x + f * (y - x) for x, y in zip(a, b, strict=True)]
 
 
+#: A velocity interval at least this long (s) whose mean is known from the positions is a
+#: sparse stream's: a prediction past its latest sample continues its trend, with the
+#: variance that trend's misses have shown (:meth:`SampleStreams.extrapolation_var_m2`).
+#: Below it (10 Hz and more) a prediction holds the latest sample, as short as it is (the
+#: trend's extrapolation and the bearing's update of the position it brings cost about
+#: 0.4 ms a bearing in the service, for nothing measurable over 0.1 s).
+SPARSE_INTERVAL_S = 0.2
+
+
 def _bracket(buf: list[Sample], t: float) -> tuple[Sample | None, Sample | None]:
     """The latest sample at or before ``t`` and the first one after it."""
     p = None
@@ -118,7 +127,12 @@ class SampleStreams:
         """The mean velocity (m/s) over the interval ending at the velocity sample ``t_s``."""
         buf = self.velocities
         if len(buf) >= 2 and buf[-2][0] < t_s:
-            if len(buf) >= 3 and buf[-2][0] in self.vel_mean and buf[-1][0] == t_s:
+            if (  # the prediction before this sample continued the previous one's trend
+                len(buf) >= 3
+                and buf[-1][0] == t_s
+                and buf[-2][0] in self.vel_mean
+                and buf[-2][0] - buf[-3][0] >= SPARSE_INTERVAL_S
+            ):
                 self._learn_extrapolation(t_s, mean_mps)
             self.vel_mean[t_s] = list(mean_mps)
 
@@ -162,7 +176,7 @@ class SampleStreams:
         if not self.vel_mean or not self.velocities:
             return 0.0
         tv = self.velocities[-1][0]
-        if t <= tv or tv not in self.vel_mean:
+        if t <= tv or not self._trend_known():
             return 0.0
         s = t - tv
         return 0.25 * self.extrapolation_mps2**2 * s**4
@@ -293,9 +307,17 @@ class SampleStreams:
 
     @property
     def sparse(self) -> bool:
-        """True when the latest velocity interval's mean came from the positions (a sparse
-        stream: a prediction past it continues its trend, :meth:`extrapolation_var_m2`)."""
-        return bool(self.vel_mean) and self.velocities[-1][0] in self.vel_mean
+        """True when the latest velocity interval's mean came from the positions and it is
+        :data:`SPARSE_INTERVAL_S` or longer (a sparse stream: a prediction past it continues
+        its trend, :meth:`extrapolation_var_m2`)."""
+        return self._trend_known()
+
+    def _trend_known(self) -> bool:
+        """See :attr:`sparse`."""
+        v = self.velocities
+        return (
+            len(v) >= 2 and v[-1][0] in self.vel_mean and v[-1][0] - v[-2][0] >= SPARSE_INTERVAL_S
+        )
 
     def chord_at(self, t: float) -> bool:
         """True if the velocity at ``t`` is an interval's mean from the positions."""
@@ -314,7 +336,7 @@ class SampleStreams:
         (``velocity_1hz``)."""
         n = len(self.velocities[-1][1])
         tv = self.velocities[-1][0]
-        if t1 <= tv or not self.vel_mean or tv not in self.vel_mean:
+        if t1 <= tv or not self._trend_known():
             h = t1 - t0
             v = self.velocity_at(t0 + 0.5 * h)
             return [h * v[j] for j in range(n)]

@@ -114,6 +114,19 @@ def test_a_sparse_stream_learns_how_far_its_trend_misses_and_the_prior_fades() -
     assert steady.extrapolation_mps2 < 1e-3
 
 
+def test_a_dense_stream_with_means_from_the_positions_holds_its_latest_sample() -> None:
+    """At 10 Hz every interval's mean comes from the positions too, but a prediction past
+    the latest sample holds it (no trend, no extrapolation variance, nothing learnt), as a
+    dense stream's always did: over 0.1 s the trend gains nothing and costs the service a
+    position update per bearing."""
+    dense = _sparse([-4.0, 0.0] * 150, dt_s=0.1)
+    assert not dense.sparse
+    tv, vl = dense.velocities[-1]
+    assert dense.extrapolation_var_m2(tv + 0.05) == 0.0
+    assert dense.predicted_displacement(tv, tv + 0.05) == pytest.approx([0.05 * vl[0]])
+    assert dense.extrap == _sparse([]).extrap  # the prior, untouched
+
+
 def test_breakpoints_are_unique_in_order_and_slivers_merge_when_asked() -> None:
     s = _streams()
     for t in (0.0, 0.5, 1.0):
