@@ -329,14 +329,16 @@ class SampleStreams:
     def predicted_displacement(self, t0: float, t1: float) -> list[float]:
         """The integral of ``v`` from ``t0`` to ``t1`` for a prediction (m): the known
         velocity (linear between samples: its midpoint) up to the latest sample; past it,
-        held, or for a sparse stream (the latest interval's mean known from the positions:
-        velocity samples up to seconds apart while the vehicle turns) its latest trend
-        continued for at most one interval. Holding a 1 Hz velocity on a figure-8 put the
+        held (where the latest interval's mean is known from the positions, the model's
+        velocity at that sample, the samples' shape shifted to the mean), or for a sparse
+        stream (such an interval of :data:`SPARSE_INTERVAL_S` or more: velocity samples up
+        to seconds apart while the vehicle turns) its latest trend continued for at most one
+        interval. Holding a 1 Hz velocity on a figure-8 put the
         estimates published just before the next sample 12 cm off, 8 times the bound
         (``velocity_1hz``)."""
         n = len(self.velocities[-1][1])
         tv = self.velocities[-1][0]
-        if t1 <= tv or not self._trend_known():
+        if t1 <= tv or len(self.velocities) < 2 or tv not in self.vel_mean:
             h = t1 - t0
             v = self.velocity_at(t0 + 0.5 * h)
             return [h * v[j] for j in range(n)]
@@ -347,6 +349,8 @@ class SampleStreams:
             out = [h * v[j] for j in range(n)]
         tp, vp = self.velocities[-2]
         v_end, slope, iv = _trend(tp, vp, tv, self.velocities[-1][1], self.vel_mean[tv])
+        if iv < SPARSE_INTERVAL_S:  # a dense stream: its model's latest velocity held
+            slope = [0.0] * n
 
         a = _trend_integral(v_end, slope, iv, max(t0 - tv, 0.0))
         b = _trend_integral(v_end, slope, iv, t1 - tv)
