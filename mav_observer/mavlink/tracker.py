@@ -91,6 +91,10 @@ SPARSE_VELOCITY_MAX_S = 5.0
 #: was 6.7-9.0 % of the range off over its last third, 2.3-3.3 % learnt over the first
 #: interval (``docs/frames.md``).
 DRIFT_LEARN_S = 1.0
+#: A correction of the published bias (:meth:`Tracker._published`) smaller than this on
+#: every axis (m/s) is not applied: below the record's resolution (0.01 mm/s), and on the
+#: per-bearing path of a service with a hundred targets.
+BIAS_CORRECTION_MIN_MPS = 1e-6
 #: How far (m) a new report of a source may put the origin from the one in use before the
 #: origin is taken to have moved: GLOBAL_POSITION_INT and LOCAL_POSITION_NED, two estimates
 #: rounded to 1 cm and 1e-7 deg (1.1 cm), disagree by centimetres; an EKF origin reset or a
@@ -277,6 +281,9 @@ class _Vehicle:
     #: ``dt`` (s), the long-run drift whose difference from ``drift`` corrects the bias
     #: published (:meth:`Tracker._published`)
     drift_all: tuple[list[float], float] = field(default_factory=lambda: ([0.0, 0.0, 0.0], 0.0))
+    #: what :meth:`Tracker._published` adds to the observer's ``a`` (m/s), ``None`` while
+    #: the drift is being learnt or the correction is below :data:`BIAS_CORRECTION_MIN_MPS`
+    bias_correction: list[float] | None = None
     #: the previous sparse interval's deviation (m/s) of the position's change from the
     #: integrated velocity, drift removed (``None``: no such interval just before)
     position_dev: list[float] | None = None
@@ -758,8 +765,12 @@ class Tracker:
             self._note(veh, "position_reset")
             return None
         sums, span = veh.drift_all
-        veh.drift_all = ([sums[j] + resid[j] for j in range(3)], span + dt)
+        sums = [sums[j] + resid[j] for j in range(3)]
+        veh.drift_all = (sums, span + dt)
         drift = veh.drift[0]
+        corr = [drift[j] - sums[j] / (span + dt) for j in range(3)]
+        big = span + dt > DRIFT_LEARN_S and max(map(abs, corr)) >= BIAS_CORRECTION_MIN_MPS
+        veh.bias_correction = corr if big else None
         # v = -u: minus the mean measured velocity, (dp - drift dt) / dt
         return [-((pos[j] - p0[j]) / dt - drift[j]) for j in range(3)]
 
@@ -1236,12 +1247,8 @@ class Tracker:
         ``drift_all``) gives the velocity's constant error itself. The estimate moves the
         vehicle's position with the observer's ``a`` (:meth:`_predicted_position`), as the
         observer integrated it."""
-        sums, span = veh.drift_all
-        if span <= DRIFT_LEARN_S:
-            return est
-        first = veh.drift[0]
-        corr = [first[j] - sums[j] / span for j in range(3)]
-        if not any(corr):
+        corr = veh.bias_correction
+        if corr is None:
             return est
         a = est.a_mps + corr  # a new array (numpy's), read-only as the estimate's are
         a.setflags(write=False)
