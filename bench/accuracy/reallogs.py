@@ -109,11 +109,9 @@ def run_log(
     observer: dict[str, Any] | None = None,
     workdir: Path | None = None,
     live: bool = False,
-    keep: bool = False,
 ) -> dict[str, Any]:
     """Inject, replay, fit and score one log (``live``: ``replay --live``, what the service
-    publishes, instead of replay's default; ``keep``: the scored records, with the truth
-    interpolated to them, under ``trace``)."""
+    publishes, instead of replay's default)."""
     res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "injected.tlog"
@@ -197,16 +195,7 @@ def run_log(
             xi_s = np.column_stack([np.interp(sm.t_s[ok], tt, xt[:, i]) for i in range(3)])
             rel_s = np.linalg.norm(xs - xi_s, axis=1) / np.linalg.norm(xi_s, axis=1)
             smoothed = math.sqrt(float(np.mean(rel_s**2)))
-    trace = {
-        "t_s": te,
-        "err_ned_m": xe - xi,
-        "target_err_h_m": err_h,
-        "sd_h_m": sd_h,
-        "status": status,
-        "records": [r for r, k in zip(est, inside, strict=True) if k],
-    }
     return {
-        **({"trace": trace} if keep else {}),
         "log": log.name,
         "seed": seed,
         "sysid": res.sysid,
