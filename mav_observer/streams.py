@@ -349,7 +349,7 @@ class SampleStreams:
             out = [h * v[j] for j in range(n)]
         tp, vp = self.velocities[-2]
         v_end, slope, iv = _trend(tp, vp, tv, self.velocities[-1][1], self.vel_mean[tv])
-        if iv < SPARSE_INTERVAL_S:  # a dense stream: its model's latest velocity held
+        if not self._trend_known():  # a dense stream: its model's latest velocity held
             slope = [0.0] * n
 
         a = _trend_integral(v_end, slope, iv, max(t0 - tv, 0.0))
