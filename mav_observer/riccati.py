@@ -149,6 +149,8 @@ def update_robust(
     Huber weight, ``outlier_nis / nis``, let 5 % of 5-30 deg errors cost 2.6x the bound
     end to end; this one 1.04x). See :class:`UpdateResult`."""
     n = x.shape[-1]
+    if n == 3 and x.ndim == 2:
+        return _update_robust_3(x, a, p, y, sig2_rad2, tracking, r_min_m, r_max_m, outlier_nis)
     m = n - 1
     trk = np.asarray(tracking, dtype=bool)
     r = np.sqrt(np.sum(x * x, axis=-1))
@@ -192,6 +194,110 @@ def update_robust(
     tr_s_inv = np.trace(s_inv, axis1=-2, axis2=-1)
     stat = r_eff * (m - r_eff * (tr_s_inv - np.sum(siz * siz, axis=-1)))
     return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat)
+
+
+#: the upper triangle of a flat 6x6 (row by row), and the flat 6x6 from it
+_UPPER_6 = tuple(6 * i + j for i in range(6) for j in range(i, 6))
+_MIRROR_6 = tuple(_UPPER_6.index(6 * min(i, j) + max(i, j)) for i in range(6) for j in range(6))
+
+
+def _update_robust_3(
+    x: np.ndarray,
+    a: np.ndarray,
+    p: np.ndarray,
+    y: np.ndarray,
+    sig2_rad2: float | np.ndarray,
+    tracking: bool | np.ndarray,
+    r_min_m: float | np.ndarray,
+    r_max_m: float | np.ndarray,
+    outlier_nis: float,
+) -> UpdateResult:
+    """:func:`update_robust` in three dimensions on a flat batch (x: (F, 3)), written out
+    entry by entry on vectors over the batch, as :func:`mav_observer.single.update_one` on
+    floats: the harness's thousands of 6x6 cost one numpy call per entry, not the batched
+    products' per-matrix loops (the same arithmetic to rounding; the covariance's upper
+    triangle is mirrored, so it is exactly symmetric)."""
+    rows = x.shape[0]
+    xt, yt = x.T, y.T
+    x0, x1, x2 = xt[0], xt[1], xt[2]
+    r = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+    trk = np.broadcast_to(np.asarray(tracking, dtype=bool), (rows,)) & (r > 1e-9)
+    safe_r = np.maximum(r, 1e-12)
+    d0 = np.where(trk, x0 / safe_r, yt[0])
+    d1 = np.where(trk, x1 / safe_r, yt[1])
+    d2 = np.where(trk, x2 / safe_r, yt[2])
+    rw = np.where(trk, safe_r, np.clip(r, r_min_m, r_max_m))
+    # the tangent basis (tangent_basis): columns 1, 2 of I - beta u u^T
+    u0 = d0 + np.where(d0 >= 0.0, 1.0, -1.0)
+    beta = 2.0 / (u0 * u0 + d1 * d1 + d2 * d2)
+    bu0, bu1, bu2 = beta * u0, beta * d1, beta * d2
+    ea0, ea1, ea2 = -bu0 * d1, 1.0 - bu1 * d1, -bu2 * d1
+    eb0, eb1, eb2 = -bu0 * d2, -bu1 * d2, 1.0 - bu2 * d2
+    ha0, ha1, ha2 = ea0 / rw, ea1 / rw, ea2 / rw
+    hb0, hb1, hb2 = eb0 / rw, eb1 / rw, eb2 / rw
+    y0, y1, y2 = yt[0], yt[1], yt[2]
+    z0 = np.where(trk, ea0 * y0 + ea1 * y1 + ea2 * y2, -(ha0 * x0 + ha1 * x1 + ha2 * x2))
+    z1 = np.where(trk, eb0 * y0 + eb1 * y1 + eb2 * y2, -(hb0 * x0 + hb1 * x1 + hb2 * x2))
+    pu = p.reshape(rows, 36).T[list(_UPPER_6)]  # (21, F): the upper triangle, row by row
+    # (the rows of the position block: H reads only those)
+    p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25 = pu[:15]
+    # the columns q, w of P H^T (6 x 2), H P H^T (2 x 2)
+    q = [
+        p00 * ha0 + p01 * ha1 + p02 * ha2,
+        p01 * ha0 + p11 * ha1 + p12 * ha2,
+        p02 * ha0 + p12 * ha1 + p22 * ha2,
+        p03 * ha0 + p13 * ha1 + p23 * ha2,
+        p04 * ha0 + p14 * ha1 + p24 * ha2,
+        p05 * ha0 + p15 * ha1 + p25 * ha2,
+    ]
+    w = [
+        p00 * hb0 + p01 * hb1 + p02 * hb2,
+        p01 * hb0 + p11 * hb1 + p12 * hb2,
+        p02 * hb0 + p12 * hb1 + p22 * hb2,
+        p03 * hb0 + p13 * hb1 + p23 * hb2,
+        p04 * hb0 + p14 * hb1 + p24 * hb2,
+        p05 * hb0 + p15 * hb1 + p25 * hb2,
+    ]
+    h00 = ha0 * q[0] + ha1 * q[1] + ha2 * q[2]
+    h01 = ha0 * w[0] + ha1 * w[1] + ha2 * w[2]
+    h11 = hb0 * w[0] + hb1 * w[1] + hb2 * w[2]
+    sig2 = np.broadcast_to(np.asarray(sig2_rad2, dtype=float), (rows,))
+    s00, s11 = h00 + sig2, h11 + sig2
+    det = s00 * s11 - h01 * h01
+    logdet = np.log(det)
+    i00, i11, i01 = s11 / det, s00 / det, -h01 / det
+    nis = z0 * (i00 * z0 + i01 * z1) + z1 * (i01 * z0 + i11 * z1)
+    weight = np.ones(rows)
+    r_eff = sig2
+    if math.isfinite(outlier_nis):
+        big = nis > outlier_nis
+        if big.any():
+            weight = np.where(big, (outlier_nis / np.where(big, nis, 1.0)) ** 2, 1.0)
+            r_eff = sig2 / weight
+            s00, s11 = h00 + r_eff, h11 + r_eff
+            det = s00 * s11 - h01 * h01
+            i00, i11, i01 = s11 / det, s00 / det, -h01 / det
+    # K = P H^T S^-1 by columns (k, l); P - K (P H^T)^T, its upper triangle mirrored
+    k = [qi * i00 + wi * i01 for qi, wi in zip(q, w, strict=True)]
+    lc = [qi * i01 + wi * i11 for qi, wi in zip(q, w, strict=True)]
+    upper = [
+        pu[c] - (k[i] * q[j] + lc[i] * w[j])
+        for c, (i, j) in enumerate((i, j) for i in range(6) for j in range(i, 6))
+    ]
+    p2 = np.stack([upper[c] for c in _MIRROR_6], axis=-1).reshape(rows, 6, 6)
+    dx = [k[i] * z0 + lc[i] * z1 for i in range(6)]
+    si0 = i00 * z0 + i01 * z1
+    si1 = i01 * z0 + i11 * z1
+    stat = r_eff * (2 - r_eff * ((i00 + i11) - (si0 * si0 + si1 * si1)))
+    return UpdateResult(
+        x + np.stack(dx[:3], axis=-1),
+        a + np.stack(dx[3:], axis=-1),
+        p2,
+        nis,
+        logdet,
+        weight,
+        weight * stat,
+    )
 
 
 def position_update(

@@ -322,6 +322,38 @@ def test_update_robust_moves_the_state_little_for_a_gross_error() -> None:
     assert plain.nis[0] == pytest.approx(robust.nis[0])  # the NIS is the nominal one
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_three_dimensional_update_written_out_equals_the_batched_products(seed: int) -> None:
+    """A flat batch in three dimensions takes the update written out entry by entry (the
+    harness's path); a batch with one more axis takes the batched matrix products. Both on
+    the same filters (tracking and acquisition, a third of the bearings gross errors): every
+    output equal to rounding, and the covariance exactly symmetric."""
+    rng = np.random.default_rng(seed)
+    f = 300
+    m = rng.normal(size=(f, 6, 6))
+    p = 0.01 * m @ m.transpose(0, 2, 1) + 1e-6 * np.eye(6)
+    x = 50.0 * rng.normal(size=(f, 3))
+    a = rng.normal(size=(f, 3))
+    y = x + rng.normal(size=(f, 3)) * np.where(rng.random(f) < 0.3, 20.0, 0.5)[:, None]
+    y /= np.linalg.norm(y, axis=1)[:, None]
+    sig2 = rng.uniform(1e-5, 1e-3, size=f)
+    tracking = rng.random(f) < 0.7
+    r_w = np.where(tracking, 1.0, rng.uniform(5.0, 80.0, size=f))
+    g = outlier_nis(2)
+    flat = riccati.update_robust(x, a, p, y, sig2, tracking, r_w, r_w, g)
+    col = (slice(None), None)
+    batched = riccati.update_robust(
+        x[col], a[col], p[col], y[col], sig2[col], tracking[col], r_w[col], r_w[col], g
+    )
+    assert 0 < int(np.sum(flat.weight < 1.0)) < f
+    for name in ("x", "a", "p", "nis", "logdet", "weight", "noise_stat"):
+        got, want = getattr(flat, name), getattr(batched, name)[:, 0]
+        assert got.shape == want.shape, name
+        scale = np.max(np.abs(want))
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * scale, err_msg=name)
+    np.testing.assert_array_equal(flat.p, flat.p.transpose(0, 2, 1))
+
+
 def test_a_gross_error_among_the_first_bearings_prunes_no_hypothesis() -> None:
     """The bank just started, the second bearing 20 deg off: beyond the robust threshold a
     bearing is no evidence for one range over another (its loss is bounded), so all seven
