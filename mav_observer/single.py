@@ -150,7 +150,10 @@ class Single:
         """The hypotheses' weights, their states ``[x, a]`` and the mixture's mean state."""
         w = [math.exp(v) for v in self.logw]
         states = [x + a for x, a in zip(self.x, self.a, strict=True)]
-        mean = [sum(wi * s[j] for wi, s in zip(w, states, strict=True)) for j in range(2 * N)]
+        # sum_k w_k s_k, accumulated hypothesis by hypothesis (the same sums as term by term)
+        mean = [0.0] * (2 * N)
+        for wi, si in zip(w, states, strict=True):
+            mean = [m + wi * c for m, c in zip(mean, si, strict=True)]
         return w, states, mean
 
 
@@ -163,8 +166,11 @@ def _spread(
     for wk, sk, pk in zip(w, states, p, strict=True):
         d = [u - v for u, v in zip(sk, mean, strict=True)]
         dw = [wk * c for c in d]
-        outer = [a * b for a, b in zip(_ROW(dw), _COL(d), strict=True)]  # w d_i d_j, i <= j
-        acc = [c + wk * q + o for c, q, o in zip(acc, _UPPER(pk), outer, strict=True)]
+        # the entry plus w P_ij plus w d_i d_j (i <= j)
+        acc = [
+            c + wk * q + a * b
+            for c, q, a, b in zip(acc, _UPPER(pk), _ROW(dw), _COL(d), strict=True)
+        ]
     return list(_MIRROR(acc))
 
 
