@@ -9,6 +9,7 @@ from pathlib import Path
 
 #: Blocks, in the order they stand at the top of the page.
 ORDER = (
+    "service-live",
     "end-to-end",
     "end-to-end-defaults",
     "end-to-end-adaptive",
