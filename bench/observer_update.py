@@ -3,7 +3,10 @@
 Run: ``python bench/observer_update.py`` (``--json`` for one JSON line).
 
 Both sides are timed the same way: blocks of calls timed with ``time.perf_counter``, the
-median of the per-call time over the blocks. The observer is fed an orbit scenario at 20 Hz
+median of the per-call time over the blocks. The converged step's ratio is the median over
+its blocks of the step's time over that of a block of inverses timed right after it (this
+machine's speed drifts by up to 1.8x within minutes: a ratio of two figures timed minutes
+apart drifts with it). The observer is fed an orbit scenario at 20 Hz
 (bearings and velocity, 0.5 deg bearing noise) after a 60 s warm-up: the default estimator
 (riccati: numpy on 6x6 matrices, one or two live filters after the warm-up), and the paper's
 observer with k = k* = 0.2 (one sub-step per sample interval) and with the paper's gains
@@ -56,6 +59,9 @@ def time_observer(cfg: ObserverConfig, seconds: float) -> dict[str, float]:
         (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
     vel_blocks: list[float] = []
     bear_blocks: list[float] = []
+    ratios: list[float] = []
+    rng = np.random.default_rng(0)
+    m = rng.normal(size=(3, 3)) + 3.0 * np.eye(3)
     vel_batch = [e for e in timed if not isinstance(e, BearingSample)]
     bear_batch = [e for e in timed if isinstance(e, BearingSample)]
     # interleave in blocks of BLOCK pairs, timing each kind separately
@@ -71,10 +77,15 @@ def time_observer(cfg: ObserverConfig, seconds: float) -> dict[str, float]:
             tb += t2 - t1
         vel_blocks.append(tv / BLOCK)
         bear_blocks.append(tb / BLOCK)
+        t0 = time.perf_counter()
+        for _ in range(BLOCK):
+            np.linalg.inv(m)
+        ratios.append((tv + tb) / (time.perf_counter() - t0))
     return {
         "velocity_update_us": statistics.median(vel_blocks) * 1e6,
         "bearing_update_us": statistics.median(bear_blocks) * 1e6,
         "blocks": len(vel_blocks),
+        "step_ratio_interleaved": statistics.median(ratios),
     }
 
 
@@ -131,7 +142,8 @@ def main() -> int:
         )
         print(
             f"{'':8s}  converged velocity + bearing step {r['step_us']:7.1f} us "
-            f"({r['step_ratio_to_inv']:.1f}x inv); the first 10 s (acquisition) "
+            f"({r['step_ratio_to_inv']:.1f}x inv; {r['step_ratio_interleaved']:.1f}x the "
+            f"inverses timed between its blocks); the first 10 s (acquisition) "
             f"{r['acquisition_step_us']:7.1f} us per step "
             f"({r['acquisition_ratio_to_inv']:.1f}x inv)"
         )
