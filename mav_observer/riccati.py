@@ -175,14 +175,13 @@ def update_robust(
     s_inv, logdet = _inv_logdet(s)
     siz = (s_inv @ z[..., :, None])[..., 0]
     nis = np.sum(z * siz, axis=-1)
-    weight = np.ones_like(nis)
-    if math.isfinite(outlier_nis):
-        big = nis > outlier_nis
-        if np.any(big):
-            weight = np.where(big, (outlier_nis / np.where(big, nis, 1.0)) ** 2, 1.0)
-            s_eff = hph + (sig2 / weight)[..., None, None] * eye
-            s_inv, _ = _inv_logdet(s_eff)
-            siz = (s_inv @ z[..., :, None])[..., 0]
+    weight = _robust_weight(nis, outlier_nis)
+    if weight is None:
+        weight = np.ones_like(nis)
+    else:
+        s_eff = hph + (sig2 / weight)[..., None, None] * eye
+        s_inv, _ = _inv_logdet(s_eff)
+        siz = (s_inv @ z[..., :, None])[..., 0]
     k = pht @ s_inv  # (..., 2n, n-1)
     ds = (k @ z[..., :, None])[..., 0]
     # P - K S K^T = P - K (P H^T)^T, symmetrised
@@ -267,16 +266,14 @@ def _update_robust_3(
     logdet = np.log(det)
     i00, i11, i01 = s11 / det, s00 / det, -h01 / det
     nis = z0 * (i00 * z0 + i01 * z1) + z1 * (i01 * z0 + i11 * z1)
-    weight = np.ones(rows)
-    r_eff = sig2
-    if math.isfinite(outlier_nis):
-        big = nis > outlier_nis
-        if big.any():
-            weight = np.where(big, (outlier_nis / np.where(big, nis, 1.0)) ** 2, 1.0)
-            r_eff = sig2 / weight
-            s00, s11 = h00 + r_eff, h11 + r_eff
-            det = s00 * s11 - h01 * h01
-            i00, i11, i01 = s11 / det, s00 / det, -h01 / det
+    weight = _robust_weight(nis, outlier_nis)
+    if weight is None:
+        weight, r_eff = np.ones(rows), sig2
+    else:
+        r_eff = sig2 / weight
+        s00, s11 = h00 + r_eff, h11 + r_eff
+        det = s00 * s11 - h01 * h01
+        i00, i11, i01 = s11 / det, s00 / det, -h01 / det
     # K = P H^T S^-1 by columns (k, l); P - K (P H^T)^T, its upper triangle mirrored
     k = [qi * i00 + wi * i01 for qi, wi in zip(q, w, strict=True)]
     lc = [qi * i01 + wi * i11 for qi, wi in zip(q, w, strict=True)]
@@ -298,6 +295,17 @@ def _update_robust_3(
         weight,
         weight * stat,
     )
+
+
+def _robust_weight(nis: np.ndarray, outlier_nis: float) -> np.ndarray | None:
+    """The bearings' robust weights (:class:`UpdateResult`): 1 up to ``outlier_nis``,
+    ``(outlier_nis / nis)^2`` beyond; ``None`` when no ``nis`` is beyond (all weigh 1)."""
+    if not math.isfinite(outlier_nis):
+        return None
+    big = nis > outlier_nis
+    if not big.any():
+        return None
+    return np.where(big, (outlier_nis / np.where(big, nis, 1.0)) ** 2, 1.0)
 
 
 def position_update(
