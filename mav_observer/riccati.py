@@ -285,7 +285,7 @@ def _update_robust_3(
     dx = [k[i] * z0 + lc[i] * z1 for i in range(6)]
     si0 = i00 * z0 + i01 * z1
     si1 = i01 * z0 + i11 * z1
-    stat = r_eff * (2 - r_eff * ((i00 + i11) - (si0 * si0 + si1 * si1)))
+    stat = r_eff * (2.0 - r_eff * ((i00 + i11) - (si0 * si0 + si1 * si1)))  # (m = 2)
     return UpdateResult(
         x + np.stack(dx[:3], axis=-1),
         a + np.stack(dx[3:], axis=-1),
