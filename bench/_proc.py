@@ -45,16 +45,21 @@ def connect_to_service(svc: subprocess.Popen[Any], mav_port: int, z_port: int) -
     return session
 
 
-def start_service(extra: list[str]) -> tuple[subprocess.Popen[Any], int, int, Any]:
+def start_service(
+    extra: list[str], *, prefix: list[str] | None = None
+) -> tuple[subprocess.Popen[Any], int, int, Any]:
     """The service on free loopback ports, its output to a temporary file: ``(process,
-    MAVLink UDP port, Zenoh TCP port, log file)``. Stop it with ``sim.live.stop_process``."""
+    MAVLink UDP port, Zenoh TCP port, log file)``. Stop it with ``sim.live.stop_process``.
+    ``prefix``: run it as ``python PREFIX... run ...`` instead of ``python -m mav_observer
+    run ...`` (a wrapper script that ends in ``mav_observer.cli.main``)."""
     mav_port = free_port(socket.SOCK_DGRAM)
     z_port = free_port(socket.SOCK_STREAM)
     log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - the caller closes it
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    svc = subprocess.Popen(
-        service_command(mav_port, z_port, *extra), stdout=log, stderr=log, env=env
-    )
+    command = service_command(mav_port, z_port, *extra)
+    if prefix is not None:  # [python, -m, mav_observer, run, ...] -> [python, *prefix, run, ...]
+        command = [command[0], *prefix, *command[3:]]
+    svc = subprocess.Popen(command, stdout=log, stderr=log, env=env)
     return svc, mav_port, z_port, log
 
 

@@ -58,6 +58,7 @@ from sim.live import free_port  # noqa: E402
 
 GOAL_P99_MS = 1.0
 RELAY = Path(__file__).resolve().parent / "_relay.py"
+TIMED_SERVICE = Path(__file__).resolve().parent / "_timed_service.py"
 
 
 def frames(args: argparse.Namespace) -> tuple[list[tuple[float, bytes, int | None]], int]:
@@ -123,7 +124,12 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         svc, mav_port, z_port, log = start_relay(key_expr)
     else:
         extra = ["--estimate-rate-hz", "0", "--log-level", args.service_log_level]
-        svc, mav_port, z_port, log = start_service(extra)
+        prefix = None
+        if args.breakdown:
+            timings = tempfile.NamedTemporaryFile(suffix=".json", delete=False)  # noqa: SIM115
+            timings.close()
+            prefix = [str(TIMED_SERVICE), timings.name]
+        svc, mav_port, z_port, log = start_service(extra, prefix=prefix)
     session = None
     sock = None
     received: list[tuple[float, bytes]] = []
@@ -217,10 +223,30 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         "service_exit": code,
         "service_log_lines": service_log.count("\n"),
     }
+    if not relay and args.breakdown:
+        result["breakdown"] = _breakdown(Path(timings.name), args.warmup)
     result["goal_p99_ms"] = GOAL_P99_MS
     result["goal_met"] = bool(lat.size) and result["p99_ms"] < GOAL_P99_MS
     print_log_tail(service_log)
     return result
+
+
+def _breakdown(path: Path, warmup: int) -> dict[str, Any]:
+    """The service's own timers (``bench/_timed_service.py``): the wall time of each bearing's
+    ``Service.handle`` and of each estimate's ``Publications.estimate``, the first ``warmup``
+    left out: p50, p90, p99 and max (ms)."""
+    times = json.loads(path.read_text())
+    path.unlink()
+    out = {}
+    for name, values in times.items():
+        v = np.array(values[warmup:]) * 1000.0
+        if v.size:
+            out[name.removesuffix("_s")] = {
+                "count": int(v.size),
+                **{f"p{q}_ms": float(np.percentile(v, q)) for q in (50, 90, 99)},
+                "max_ms": float(v.max()),
+            }
+    return out
 
 
 def main() -> int:
@@ -238,6 +264,12 @@ def main() -> int:
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     parser.add_argument(
         "--no-baseline", action="store_true", help="skip the relay's floor (bench/_relay.py)"
+    )
+    parser.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="run the service with timers (bench/_timed_service.py): the wall time of each "
+        "bearing's handling in the service, and of its estimate's publication over Zenoh",
     )
     args = parser.parse_args()
     base = None if args.no_baseline else run(args, relay=True)
@@ -259,6 +291,15 @@ def main() -> int:
         for st, v in r["by_status"].items()
     ]
     print("the service's bearings by the status of their estimate: " + "; ".join(parts))
+    for name, v in r.get("breakdown", {}).items():
+        what = {
+            "handle": "a bearing's handling in the service (tracker, observer, publication)",
+            "publish": "of which its estimate's publication over Zenoh",
+        }[name]
+        print(
+            f"{what}: p50 {v['p50_ms']:.3f} ms, p90 {v['p90_ms']:.3f} ms, p99 "
+            f"{v['p99_ms']:.3f} ms, max {v['max_ms']:.3f} ms ({v['count']})"
+        )
     if base is not None:
         r["baseline"] = base
         r["ratio_to_relay"] = {
