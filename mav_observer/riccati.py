@@ -195,9 +195,12 @@ def update_robust(
     return UpdateResult(x + ds[..., :n], a + ds[..., n:], p2, nis, logdet, weight, weight * stat)
 
 
-#: the upper triangle of a flat 6x6 (row by row), and the flat 6x6 from it
-_UPPER_6 = tuple(6 * i + j for i in range(6) for j in range(i, 6))
-_MIRROR_6 = tuple(_UPPER_6.index(6 * min(i, j) + max(i, j)) for i in range(6) for j in range(6))
+#: A flat (row-major) 6x6 covariance's upper triangle, row by row: its rows and columns,
+#: its flat indices, and for each of the 36 flat entries the upper-triangle entry that holds
+#: it (a symmetric 6x6 from its 21 distinct entries). Shared with :mod:`mav_observer.single`.
+UPPER_IJ_6 = tuple((i, j) for i in range(6) for j in range(i, 6))
+UPPER_6 = tuple(6 * i + j for i, j in UPPER_IJ_6)
+MIRROR_6 = tuple(UPPER_IJ_6.index((min(i, j), max(i, j))) for i in range(6) for j in range(6))
 
 
 def _update_robust_3(
@@ -237,7 +240,7 @@ def _update_robust_3(
     y0, y1, y2 = yt[0], yt[1], yt[2]
     z0 = np.where(trk, ea0 * y0 + ea1 * y1 + ea2 * y2, -(ha0 * x0 + ha1 * x1 + ha2 * x2))
     z1 = np.where(trk, eb0 * y0 + eb1 * y1 + eb2 * y2, -(hb0 * x0 + hb1 * x1 + hb2 * x2))
-    pu = p.reshape(rows, 36).T[list(_UPPER_6)]  # (21, F): the upper triangle, row by row
+    pu = p.reshape(rows, 36).T[list(UPPER_6)]  # (21, F): the upper triangle, row by row
     # (the rows of the position block: H reads only those)
     p00, p01, p02, p03, p04, p05, p11, p12, p13, p14, p15, p22, p23, p24, p25 = pu[:15]
     # the columns q, w of P H^T (6 x 2), H P H^T (2 x 2)
@@ -277,11 +280,8 @@ def _update_robust_3(
     # K = P H^T S^-1 by columns (k, l); P - K (P H^T)^T, its upper triangle mirrored
     k = [qi * i00 + wi * i01 for qi, wi in zip(q, w, strict=True)]
     lc = [qi * i01 + wi * i11 for qi, wi in zip(q, w, strict=True)]
-    upper = [
-        pu[c] - (k[i] * q[j] + lc[i] * w[j])
-        for c, (i, j) in enumerate((i, j) for i in range(6) for j in range(i, 6))
-    ]
-    p2 = np.stack([upper[c] for c in _MIRROR_6], axis=-1).reshape(rows, 6, 6)
+    upper = [pu[c] - (k[i] * q[j] + lc[i] * w[j]) for c, (i, j) in enumerate(UPPER_IJ_6)]
+    p2 = np.stack([upper[c] for c in MIRROR_6], axis=-1).reshape(rows, 6, 6)
     dx = [k[i] * z0 + lc[i] * z1 for i in range(6)]
     si0 = i00 * z0 + i01 * z1
     si1 = i01 * z0 + i11 * z1

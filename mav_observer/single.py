@@ -31,10 +31,8 @@ from mav_observer import riccati
 N = 3
 #: tangent directions per bearing
 M = N - 1
-#: the upper triangle of a flat 6x6, row by row
-_UPPER = operator.itemgetter(
-    0, 1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 14, 15, 16, 17, 21, 22, 23, 28, 29, 35
-)
+#: the upper triangle of a flat 6x6, row by row (:data:`~mav_observer.riccati.UPPER_6`)
+_UPPER = operator.itemgetter(*riccati.UPPER_6)
 
 
 @dataclass
@@ -175,14 +173,12 @@ def _spread(
 
 
 #: the upper triangle's rows and columns (in :data:`_UPPER`'s order), and the flat 6x6 from it
-_UPPER_IJ = tuple((i, j) for i in range(2 * N) for j in range(i, 2 * N))
-_ROW = operator.itemgetter(*(i for i, _ in _UPPER_IJ))
-_COL = operator.itemgetter(*(j for _, j in _UPPER_IJ))
+#: (:data:`~mav_observer.riccati.UPPER_IJ_6`, :data:`~mav_observer.riccati.MIRROR_6`)
+_ROW = operator.itemgetter(*(i for i, _ in riccati.UPPER_IJ_6))
+_COL = operator.itemgetter(*(j for _, j in riccati.UPPER_IJ_6))
 #: the upper triangle's flat 6x6 indices with their rows and columns
-_UPPER_KIJ = tuple((2 * N * i + j, i, j) for i, j in _UPPER_IJ)
-_MIRROR = operator.itemgetter(
-    *(_UPPER_IJ.index((min(i, j), max(i, j))) for i in range(2 * N) for j in range(2 * N))
-)
+_UPPER_KIJ = tuple((k, i, j) for k, (i, j) in zip(riccati.UPPER_6, riccati.UPPER_IJ_6, strict=True))
+_MIRROR = operator.itemgetter(*riccati.MIRROR_6)
 
 
 def applies(bank: riccati.Bank) -> bool:
