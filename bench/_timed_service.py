@@ -26,6 +26,9 @@ BEARING = "GIMBAL_DEVICE_ATTITUDE_STATUS"
 
 
 def main() -> int:
+    if len(sys.argv) < 3 or sys.argv[2] != "run":
+        print(f"usage: python {sys.argv[0]} OUT.json run [mav-observer run options]")
+        return 2
     out = Path(sys.argv[1])
     times: dict[str, list[float]] = {"handle_s": [], "publish_s": []}
     handle, publish = service.Service.handle, zenoh_io.Publications.estimate
