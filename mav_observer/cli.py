@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -393,12 +392,12 @@ def cmd_listen(args: argparse.Namespace) -> int:
 def _write_maps(args: argparse.Namespace, summary: Any, name: str) -> int:
     """Write ``--geojson`` and ``--kml``; 3 (nothing written) when no estimate had a place
     on the map (the log never gave the local frame's origin)."""
+    if not (args.geojson or args.kml):
+        return 0
     import json
 
     from mav_observer import mapexport
 
-    if not (args.geojson or args.kml):
-        return 0
     tracks = summary.map_tracks
     if not tracks:
         print(
@@ -492,6 +491,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv and argv[0] == "demo":
         # the simulator is a separate program: run it as a child process, options passed on
         try:
+            import subprocess  # (the demo's alone: its import is not a replay's start-up)
+
             return subprocess.call([sys.executable, "-m", "sim", "live", *argv[1:]])
         except KeyboardInterrupt:
             return 130

@@ -18,19 +18,21 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from mav_observer import smoother
 from mav_observer.errors import MavObserverError
-from mav_observer.mapexport import MapTracks
 from mav_observer.mavlink.connection import ConnectionReader, is_file_source
 from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
 from mav_observer.observer import BEARING_NOISE_PRIOR_DEG
 from mav_observer.records import CSV_COLUMNS, EstimateRecord
 from mav_observer.samples import NoiseLevels, Status
+
+if TYPE_CHECKING:  # imported where used: a replay without --smooth or a map does not load them
+    from mav_observer import smoother
+    from mav_observer.mapexport import MapTracks
 
 log = logging.getLogger(__name__)
 
@@ -373,7 +375,7 @@ def replay(
     link: LinkOptions | None = None,
     smooth: bool = False,
     smooth_jsonl: Path | None = None,
-    smooth_window_s: float = smoother.WINDOW_S,
+    smooth_window_s: float | None = None,
     keep_map: bool = False,
     live: bool = False,
 ) -> ReplaySummary:
@@ -391,10 +393,14 @@ def replay(
     tracker = Tracker(replace(tc, publish=publish))
     smooth = smooth or smooth_jsonl is not None
     if smooth:
+        from mav_observer import smoother
+
         tracker.sample_log = smoother.SampleLog()
     exc_min = tracker.config.observer.excitation_min
     summary = ReplaySummary(source=source)
     if keep_map:
+        from mav_observer.mapexport import MapTracks
+
         summary.map_tracks = MapTracks()
     map_tracks = summary.map_tracks
     if is_file_source(source):
@@ -481,8 +487,15 @@ def replay(
     return summary
 
 
-def _smooth(summary: ReplaySummary, tracker: Tracker, path: Path | None, window_s: float) -> None:
-    """The smoother over every target's track; its records to ``path``."""
+def _smooth(
+    summary: ReplaySummary, tracker: Tracker, path: Path | None, window_s: float | None
+) -> None:
+    """The smoother over every target's track (windows of ``window_s``, s; ``None``: the
+    smoother's :data:`~mav_observer.smoother.WINDOW_S`); its records to ``path``."""
+    from mav_observer import smoother
+
+    if window_s is None:
+        window_s = smoother.WINDOW_S
     log_ = tracker.sample_log
     if log_ is None:
         return

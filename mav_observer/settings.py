@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -464,6 +463,8 @@ def merge(
 
 def load_toml(path: Path) -> dict[str, Any]:
     """Read a TOML settings file (not yet checked: see :func:`resolve`)."""
+    import tomllib  # (here: a run or replay without a file does not pay for its import)
+
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)

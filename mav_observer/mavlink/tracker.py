@@ -37,7 +37,7 @@ import math
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mav_observer import geodesy
 from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
@@ -52,8 +52,10 @@ from mav_observer.mavlink.timebase import ClockMap
 from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
 from mav_observer.samples import Estimate
-from mav_observer.smoother import SampleLog
 from mav_observer.targets import Targets, VehicleFix, check_saved
+
+if TYPE_CHECKING:  # (the smoother's sample log is made by a replay that smooths)
+    from mav_observer.smoother import SampleLog
 
 log = logging.getLogger(__name__)
 
