@@ -18,7 +18,7 @@ few kilometres of a flight the geoid's slope is far below a millimetre per metre
 WGS84 frame a local point's conversion is pymap3d's ``ned2geodetic`` expanded to second
 order around the origin (:func:`to_geodetic`; the expansion from pymap3d once per origin):
 within 5 mm of pymap3d up to :data:`LOCAL_RADIUS_M` from the origin and
-:data:`LOCAL_MAX_LAT_DEG` of latitude (``tests/test_geodesy.py``), at 3 us instead of 85;
+:data:`LOCAL_MAX_LAT_DEG` of latitude (``tests/test_geodesy.py``), at 1.3 us instead of 85;
 farther, pymap3d's exact conversion. No I/O.
 """
 
@@ -368,10 +368,13 @@ def to_geodetic(origin: Origin, ned_m: tuple[float, float, float]) -> tuple[floa
         lat, lon, alt = _exact(origin.lat_deg, origin.lon_deg, origin.alt_m, ned_m)
         return lat, math.remainder(lon, 360.0), alt
     f0, g0, g1, g2, h0, h1, h2 = origin.model
-    q = (0.5 * n * n, 0.5 * e * e, 0.5 * d * d, n * e, n * d, e * d)
+    q0, q1, q2, q3, q4, q5 = 0.5 * n * n, 0.5 * e * e, 0.5 * d * d, n * e, n * d, e * d
     out = []
-    for f, g, hh in ((f0[0], g0, h0), (f0[1], g1, h1), (f0[2], g2, h2)):
+    for f, g, h in ((f0[0], g0, h0), (f0[1], g1, h1), (f0[2], g2, h2)):
+        # value, gradient, then the Hessian's terms summed in order (written out: 1.3 us
+        # a point, against 3.3 us with a generator's sum)
         out.append(
-            f + g[0] * n + g[1] * e + g[2] * d + sum(a * b for a, b in zip(hh, q, strict=True))
-        )
+            f + g[0] * n + g[1] * e + g[2] * d
+            + (h[0] * q0 + h[1] * q1 + h[2] * q2 + h[3] * q3 + h[4] * q4 + h[5] * q5)
+        )  # fmt: skip
     return out[0], math.remainder(out[1], 360.0), out[2]
