@@ -244,8 +244,13 @@ _NO_GEO = (None, None, None, None, None)
 _GEO_FMT = ("%.8f", "%.8f", _P, _P, _P)  # 1e-8 deg: about a millimetre
 
 
+_GEO_TEMPLATE = ", ".join(f'"{k}": {f}' for k, f in zip(_GEO_KEYS, _GEO_FMT, strict=True))
+
+
 def _geo_json(geo: tuple[float, float, float, float | None, float | None] | None) -> str:
     """The geodetic fields of :meth:`EstimateRecord.to_json` (``null`` each when unknown)."""
+    if geo is not None and geo[3] is not None and math.isfinite(sum(geo)):  # type: ignore[arg-type]
+        return _GEO_TEMPLATE % geo  # every value known (the same text, one format)
     vals = geo or _NO_GEO
     return ", ".join(
         f'"{k}": {_num_or_null(f, v)}' for k, f, v in zip(_GEO_KEYS, _GEO_FMT, vals, strict=True)
@@ -264,9 +269,16 @@ def _num_or_null(fmt: str, v: float | None) -> str:
     return "null" if v is None or not math.isfinite(v) else fmt % v
 
 
+_VEC3 = {f: f"[{f}, {f}, {f}]" for f in (_P, _V)}
+
+
 def _vec_or_null(fmt: str, v: Any) -> str:
     if v is None:
         return "null"
+    if len(v) == 3:
+        c = v.tolist() if hasattr(v, "tolist") else list(v)
+        if math.isfinite(c[0] + c[1] + c[2]):  # (the same text as term by term, one format)
+            return _VEC3[fmt] % (c[0], c[1], c[2])
     return "[" + ", ".join(_num_or_null(fmt, float(c)) for c in v) + "]"
 
 

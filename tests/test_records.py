@@ -135,3 +135,22 @@ def test_the_target_on_the_map_once_the_origin_is_known() -> None:
         j = json.loads(no.to_json())
         assert [j[k] for k in ("target_lat_deg", "target_lon_deg", "target_alt_m")] == [None] * 3
         assert no.to_dict()["target_h_std_m"] is None
+
+
+def test_a_non_finite_standard_deviation_is_null_alone_and_the_map_fields_without_one() -> None:
+    """The vectors and the map fields written in one format when every value is known fall
+    back to value by value otherwise: a NaN sigma is null where it is, and without sigmas the
+    target is still on the map with null sigmas."""
+    est = replace(_est(), x_std_m=np.array([0.3, math.nan, 1.2]), a_std_mps=np.array([0.01] * 3))
+    j = json.loads(
+        EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (1.0, 2.0, 3.0), ORIGIN).to_json()
+    )
+    assert j["rel_pos_std_ned_m"] == [0.3, None, 1.2] and j["bias_std_ned_mps"] == [0.01] * 3
+    assert j["target_h_std_m"] is None and j["target_v_std_m"] == 1.2
+    assert j["target_lat_deg"] is not None and j["target_alt_m"] is not None
+    j = json.loads(
+        EstimateRecord(1.0, 2.0, 1, "gimbal", "G", _est(), (1.0, 2.0, 3.0), ORIGIN).to_json()
+    )
+    assert j["rel_pos_std_ned_m"] is None
+    assert j["target_h_std_m"] is None and j["target_v_std_m"] is None
+    assert j["target_lon_deg"] == pytest.approx(to_geodetic(ORIGIN, (4.0, 6.0, 15.0))[1], abs=5e-9)
