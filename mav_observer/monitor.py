@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from mav_observer.discrete import sym_eigvals
 from mav_observer.errors import StateError
@@ -210,15 +211,15 @@ class ExcitationWindow:
         }
 
     @classmethod
-    def from_dict(cls, n: int, d: dict[str, object]) -> ExcitationWindow:
+    def from_dict(cls, n: int, d: dict[str, Any]) -> ExcitationWindow:
         try:
-            win = cls(n, float(d["window_s"]), int(d["buckets"]))  # type: ignore[arg-type]
-            win._idx = [int(i) for i in d["idx"]]  # type: ignore[union-attr]
-            win._covered = [float(c) for c in d["covered"]]  # type: ignore[union-attr]
-            win._valid = [float(c) for c in d["valid"]]  # type: ignore[union-attr]
-            win._yy = [_floats(a, n * n) for a in d["yy"]]  # type: ignore[union-attr]
-            win._dx = [_floats(a, n) for a in d["dx"]]  # type: ignore[union-attr]
-            win._da = [_floats(a, n) for a in d["da"]]  # type: ignore[union-attr]
+            win = cls(n, float(d["window_s"]), int(d["buckets"]))
+            win._idx = [int(i) for i in d["idx"]]
+            win._covered = [float(c) for c in d["covered"]]
+            win._valid = [float(c) for c in d["valid"]]
+            win._yy = [_floats(a, n * n) for a in d["yy"]]
+            win._dx = [_floats(a, n) for a in d["dx"]]
+            win._da = [_floats(a, n) for a in d["da"]]
         except (KeyError, TypeError, ValueError) as exc:
             raise StateError(f"monitor state is malformed: {exc}") from exc
         lengths = {len(win._idx), len(win._covered), len(win._valid), len(win._yy), len(win._dx)}

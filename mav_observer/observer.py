@@ -552,6 +552,7 @@ class BiasObserver:
                     xhat = x_new.tolist()
                 pxx_pred = pred.ravel().tolist()
         rng = math.sqrt(discrete.dot(xhat, xhat))
+        b_age: float | None
         if committed:
             b_age = 0.0
             tv = max((tv for tv, _ in streams.velocities if tv <= t), default=None)

@@ -54,7 +54,7 @@ def predict(
     dx_m: np.ndarray,
     h_s: float,
     q_x: float,
-    q_a: float,
+    q_a: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Propagate over ``h_s`` seconds (the same for the whole batch): ``x += dx_m + h a``
     (``dx_m`` = the integral of ``v`` over the step, m), ``a`` unchanged,

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import operator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -205,7 +206,7 @@ def to_bank(s: Single) -> riccati.Bank:
     d = 2 * N
     f = len(s.x)
 
-    def one(v: list[float] | float) -> np.ndarray:
+    def one(v: Any) -> np.ndarray:
         return np.array([v], dtype=float)
 
     return riccati.Bank(

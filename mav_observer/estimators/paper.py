@@ -124,7 +124,7 @@ class PaperEstimator:
             self._x = discrete.estimate_from_state(self.ahat, self.xh1, self.m)
         return Output(self._x, self.ahat, None)
 
-    def position_cov(self, dt_s: float, inputs: Inputs) -> np.ndarray | None:
+    def position_cov(self, dt_s: float, inputs: Inputs) -> list[float] | None:
         return None
 
     def cond(self) -> float:

@@ -254,7 +254,7 @@ class RiccatiEstimator:
                 else:
                     p = self.output(inputs).p
                     d = 2 * len(y)
-                    var_x = sum(p[(d + 1) * j] for j in range(len(y)))  # type: ignore[index]
+                    var_x = sum((p[(d + 1) * j] for j in range(len(y))), 0.0)  # type: ignore[index]
                 if var_x < LATENCY_CONVERGED_REL**2 * sum(c * c for c in x):
                     lat.observe(t_s, x, a, v, y, self._noise_var_rad2(prm))  # type: ignore[union-attr]
             if tau != 0.0:  # the line of sight tau earlier, brought to t_s
