@@ -168,9 +168,16 @@ def replays(trees: dict[str, Path], logs: list[Path], repeat: int, tmp: Path) ->
     return rows
 
 
+def _positive(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--repeat {n}: must be at least 1")
+    return n
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--repeat", type=_positive, default=3, help="alternating runs (>= 1)")
     parser.add_argument("--json", type=Path, help="also write the results as JSON")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp_name:
