@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import platform
 import statistics
 import sys
@@ -31,7 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mav_observer import BearingSample, BiasObserver, ObserverConfig, single
+from mav_observer import BearingSample, BiasObserver, ObserverConfig
 from sim import scenarios
 from sim.stream import Noise, generate
 
@@ -92,37 +91,6 @@ def time_observer(cfg: ObserverConfig, seconds: float) -> dict[str, float]:
     }
 
 
-def time_filter_arithmetic(blocks: int) -> tuple[float, float]:
-    """The default estimator's arithmetic alone, once converged: its four filters (the
-    hypothesis, the Riccati observer that supervises it, the bias walk's two probes) each
-    predicted over 0.05 s and updated with one bearing (:func:`mav_observer.single.predict_one`
-    and :func:`~mav_observer.single.update_one` on floats; the observer's update in its
-    acquisition form). Returns the microseconds of the eight calls (median over blocks) and
-    their median ratio to a block of 3x3 inverses timed after each block."""
-    x, a = [12.0, 5.0, -3.0], [0.1, -0.05, 0.0]
-    p = (0.01 * np.eye(6) + 0.001).ravel().tolist()
-    r = math.sqrt(sum(c * c for c in x))
-    y = [c / r for c in x]
-    dx = [0.01, -0.02, 0.0]
-    m = np.random.default_rng(0).normal(size=(3, 3)) + 3.0 * np.eye(3)
-    per, ratios = [], []
-    for _ in range(blocks):
-        t0 = time.perf_counter()
-        for _ in range(BLOCK):
-            for q_a in (1e-4, 1e-5, 1e-3):  # the filter and its two probes
-                xs, as_, ps = single.predict_one(x, a, p, dx, 0.05, 1e-6, q_a)
-                single.update_one(xs, as_, ps, y, 7.6e-5, True, 1.0, 13.8)
-            xs, as_, ps = single.predict_one(x, a, p, dx, 0.05, 1e-6, 1e-4)
-            single.update_one(xs, as_, ps, y, 7.6e-5, False, 15.0, 13.8)
-        t1 = time.perf_counter()
-        for _ in range(BLOCK):
-            np.linalg.inv(m)
-        t2 = time.perf_counter()
-        per.append((t1 - t0) / BLOCK)
-        ratios.append((t1 - t0) / (t2 - t1))
-    return statistics.median(per) * 1e6, statistics.median(ratios)
-
-
 def time_acquisition(cfg: ObserverConfig, seconds: float, repeats: int) -> float:
     """Microseconds per velocity + bearing pair over the first ``seconds`` of a fresh observer
     (the acquisition: the bank's seven hypotheses, pruned and merged), median of ``repeats``."""
@@ -162,9 +130,6 @@ def main() -> int:
         r["acquisition_step_us"] = time_acquisition(cfg, 10.0, 10)
         r["acquisition_ratio_to_inv"] = r["acquisition_step_us"] / inv_us
         results[label] = r
-    arith_us, arith_ratio = time_filter_arithmetic(blocks=50)
-    results["filter_arithmetic_us"] = arith_us
-    results["filter_arithmetic_ratio_interleaved"] = arith_ratio
     if args.json:
         print(json.dumps(results))
         return 0
@@ -184,11 +149,6 @@ def main() -> int:
             f"{r['acquisition_step_us']:7.1f} us per step "
             f"({r['acquisition_ratio_to_inv']:.1f}x inv)"
         )
-    print(
-        f"the default estimator's four filters' arithmetic alone (four predictions and four "
-        f"updates on floats): {arith_us:.1f} us, {arith_ratio:.1f}x the inverses timed between "
-        f"its blocks"
-    )
     return 0
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -486,7 +487,16 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return map_status
 
 
+#: Threads of numpy's BLAS (OpenBLAS) unless the environment says otherwise: the estimator's
+#: matrices are 3x3 to 8x8, which OpenBLAS does not split, and starting its threads (one a
+#: core) took a third of a replay's start-up on a 2-core machine: numpy's import 66 ms with
+#: one thread against 80-120 ms. Set before numpy is first imported, which ``import
+#: mav_observer`` must therefore not do.
+BLAS_THREADS = "1"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", BLAS_THREADS)
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "demo":
         # the simulator is a separate program: run it as a child process, options passed on

@@ -39,8 +39,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+from mav_observer.core.samples import Estimate
 from mav_observer.geodesy import Origin, to_geodetic
-from mav_observer.samples import Estimate
 
 SCHEMA_VERSION = 1
 
@@ -165,16 +165,22 @@ class EstimateRecord:
         """The record as one line of JSON (no trailing newline), numbers rounded to
         :data:`JSON_RESOLUTION` (far below the estimator's accuracy; printing shortest
         round-trip floats cost more than the rest of the replay's output). A non-finite
-        number, which JSON cannot carry, is written as ``null``."""
+        number, which JSON cannot carry, is written as ``null``.
+
+        The same text as formatting :meth:`to_dict`'s values one by one, each value
+        computed once (the target's position and the position's sigmas serve the map
+        fields too) and every number formatted by one template when all are finite."""
         e = self.estimate
         x0, x1, x2 = e.x_m.tolist()
         a0, a1, a2 = e.a_mps.tolist()
         vp = self.vehicle_pos_ned_m
         head = (float(self.t_unix_s), float(self.t_boot_s), self.sysid, self.target, self.source)
         nums = (x0, x1, x2, float(e.range_m), a0, a1, a2)
+        sd = e.x_std_m
+        sdl = None if sd is None else sd.tolist() if hasattr(sd, "tolist") else list(sd)
         stds = (
             _num_or_null(_P, e.range_std_m),
-            _vec_or_null(_P, e.x_std_m),
+            "null" if sd is None else _vec_or_null(_P, sd, sdl),
             _vec_or_null(_V, e.a_std_mps),
         )
         tail = (
@@ -184,12 +190,24 @@ class EstimateRecord:
             str(e.status),
             _BOOL[bool(e.corrected)],
         )
+        origin = self.origin
         if vp is None:
             template, pos = _JSON_NO_POS, ()
+            geo = _GEO_NULL
         else:
             v0, v1, v2 = (float(v) for v in vp)
-            template, pos = _JSON_POS, (v0 + x0, v1 + x1, v2 + x2, v0, v1, v2)
-        vals = (*head, *nums, *pos, *tail, _geo_json(self.target_geodetic()))
+            tp = (v0 + x0, v1 + x1, v2 + x2)  # target_pos_ned_m
+            template, pos = _JSON_POS, (*tp, v0, v1, v2)
+            if origin is None:
+                geo = _GEO_NULL
+            else:  # target_geodetic(), the target's position and sigmas as computed here
+                lat, lon, alt = to_geodetic(origin, tp)
+                if sdl is None or len(sdl) != 3:
+                    geo = _geo_json((lat, lon, alt, None, None))
+                else:
+                    sn, se, sdd = sdl
+                    geo = _geo_json((lat, lon, alt, math.sqrt(sn * sn + se * se), sdd))
+        vals = (*head, *nums, *pos, *tail, geo)
         if math.isfinite(sum((*head[:2], *nums, *pos, *tail[3:5]))):  # all finite: fast path
             return template % vals
         return _format_checked(template, vals)
@@ -269,14 +287,18 @@ def _num_or_null(fmt: str, v: float | None) -> str:
     return "null" if v is None or not math.isfinite(v) else fmt % v
 
 
+_GEO_NULL = _geo_json(None)  # (the map fields when the target's position is unknown)
+
 _VEC3 = {f: f"[{f}, {f}, {f}]" for f in (_P, _V)}
 
 
-def _vec_or_null(fmt: str, v: Any) -> str:
+def _vec_or_null(fmt: str, v: Any, c: list[float] | None = None) -> str:
+    """``v`` (a vector, or ``None``) in JSON; ``c``: its values as a list, when known."""
     if v is None:
         return "null"
     if len(v) == 3:
-        c = v.tolist() if hasattr(v, "tolist") else list(v)
+        if c is None:
+            c = v.tolist() if hasattr(v, "tolist") else list(v)
         if math.isfinite(c[0] + c[1] + c[2]):  # (the same text as term by term, one format)
             return _VEC3[fmt] % (c[0], c[1], c[2])
     return "[" + ", ".join(_num_or_null(fmt, float(c)) for c in v) + "]"

@@ -22,13 +22,13 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
+from mav_observer.core.config import BEARING_NOISE_PRIOR_DEG
+from mav_observer.core.samples import NoiseLevels, Status
 from mav_observer.errors import MavObserverError
-from mav_observer.mavlink.connection import ConnectionReader, is_file_source
+from mav_observer.mavlink.sources import is_file_source
 from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
-from mav_observer.observer import BEARING_NOISE_PRIOR_DEG
 from mav_observer.records import CSV_COLUMNS, EstimateRecord
-from mav_observer.samples import NoiseLevels, Status
 
 if TYPE_CHECKING:  # imported where used: a replay without --smooth or a map does not load them
     from mav_observer import smoother
@@ -343,6 +343,8 @@ def _messages(
         return iter(reader), reader
     if Path(source).suffix in (".tlog", ".rlog") and not Path(source).exists():
         raise ReplayError(f"no such file: {source}")
+    from mav_observer.mavlink.connection import ConnectionReader  # (a live source's alone)
+
     reader = ConnectionReader(
         source,
         duration_s=duration_s,
@@ -591,7 +593,7 @@ def _check_usable(summary: ReplaySummary, tracker: Tracker) -> None:
 
 
 def _whiteness_lines(nz: NoiseLevels) -> list[str]:
-    """The summary's line on the innovations' lag-1 correlation (:mod:`~mav_observer.whiteness`)
+    """The summary's line on the innovations' lag-1 correlation (``NoiseLevels.innovation_corr``)
     with its warning, or none before it is known."""
     ic = nz.innovation_corr
     return [] if ic is None else [f"  {ic.describe()}"]

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from mav_observer import __version__, statefile
+from mav_observer.core.samples import WARN_LAG1, Correlation
 from mav_observer.errors import MavObserverError
 from mav_observer.mavlink import signing
 from mav_observer.mavlink.connection import ConnectionReader
@@ -42,7 +43,6 @@ from mav_observer.mavlink.out import MavlinkOut, OutConfig
 from mav_observer.mavlink.tracker import Tracker
 from mav_observer.records import STATUS_SCHEMA, EstimateRecord
 from mav_observer.settings import Settings
-from mav_observer.whiteness import WARN_LAG1, Correlation
 from mav_observer.zenoh_io import Publications
 
 log = logging.getLogger(__name__)
@@ -315,7 +315,7 @@ class Service:
 
     def _say_systematic(self, sysid: int, name: str, tgt: _Target, ic: Correlation) -> None:
         """Log once, and count as the event ``innovations_systematic``, when a target's
-        innovations turn systematic (:attr:`~mav_observer.whiteness.Correlation.systematic`);
+        innovations turn systematic (:attr:`~mav_observer.core.samples.Correlation.systematic`);
         said again only after they have been white (lag-1 below half the warning's) since."""
         if ic.systematic and not tgt.systematic_said:
             tgt.systematic_said = True

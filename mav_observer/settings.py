@@ -19,10 +19,10 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
+from mav_observer.core.config import ESTIMATORS, ObserverConfig
 from mav_observer.errors import ConfigError
-from mav_observer.mavlink.connection import URL_PREFIXES
+from mav_observer.mavlink.sources import URL_PREFIXES
 from mav_observer.mavlink.tracker import SOURCES, TrackerConfig
-from mav_observer.observer import ESTIMATORS, ObserverConfig
 
 DEFAULT_MAVLINK_URL = "udpin:127.0.0.1:14550"
 DEFAULT_ZENOH_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -230,7 +230,7 @@ def _checked_by(cls: type, key: str, check: Callable[[object], Any]) -> Callable
 
 
 def _observer_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
-    """``[observer]``: every :class:`~mav_observer.observer.ObserverConfig` field, its default
+    """``[observer]``: every :class:`~mav_observer.core.observer.ObserverConfig` field, its default
     and validation the dataclass's own."""
     out: dict[str, tuple[Any, Callable[[object], Any], str]] = {}
     for f in fields(ObserverConfig):

@@ -17,9 +17,9 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from mav_observer.core.observer import BiasObserver, ObserverConfig
+from mav_observer.core.samples import Estimate
 from mav_observer.errors import InvalidSampleError, StateError
-from mav_observer.observer import BiasObserver, ObserverConfig
-from mav_observer.samples import Estimate
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from mav_observer.observer import BiasObserver, ObserverConfig
+from mav_observer.core.observer import BiasObserver, ObserverConfig
 from sim import scenarios
 from sim.runner import run
 from sim.stream import Noise, generate

@@ -23,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from mav_observer.observer import BiasObserver, ObserverConfig
+from mav_observer.core.observer import BiasObserver, ObserverConfig
 from sim import scenarios
 from sim.runner import RunResult, run
 from sim.stream import PAPER_NOISE, Noise, generate

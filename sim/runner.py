@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mav_observer.observer import BiasObserver
-from mav_observer.samples import BearingSample, Estimate
+from mav_observer.core.observer import BiasObserver
+from mav_observer.core.samples import BearingSample, Estimate
 from sim.stream import Stream
 
 

@@ -3,8 +3,8 @@
 :func:`generate` samples a scenario's bearing and velocity at their own rates (optionally
 jittered and with dropped samples), adds the chosen noise, and returns a :class:`Stream`:
 arrays of sample times and values, plus the truth at the bearing times. ``Stream.events()``
-yields :class:`mav_observer.samples.VelocitySample` and
-:class:`~mav_observer.samples.BearingSample` in time order (velocity first on equal times).
+yields :class:`mav_observer.core.samples.VelocitySample` and
+:class:`~mav_observer.core.samples.BearingSample` in time order (velocity first on equal times).
 
 Noise models (all off by default, combinable):
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mav_observer.samples import BearingSample, VelocitySample
+from mav_observer.core.samples import BearingSample, VelocitySample
 from sim.scenarios import Scenario
 
 

@@ -15,7 +15,6 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bench.accuracy import cli, core, estimators, run  # noqa: E402
-from mav_observer.riccati import tangent_basis  # noqa: E402
 from sim import scenarios  # noqa: E402
 
 
@@ -28,7 +27,9 @@ def _truth(name: str, duration_s: float) -> tuple[np.ndarray, np.ndarray]:
 def _measurement_info(x: np.ndarray, sigma: float) -> np.ndarray:
     """H_k^T H_k / sigma^2 on the position block (T, n, n)."""
     r = np.linalg.norm(x, axis=1)
-    e = tangent_basis(x / r[:, None])
+    # an orthonormal basis of the plane orthogonal to each bearing, from an SVD (independent
+    # of the harness's projection form)
+    e = np.stack([np.linalg.svd(u[None, :])[2][1:].T for u in x / r[:, None]])
     return np.einsum("tij,tkj->tik", e, e) / (r[:, None, None] ** 2 * sigma**2)
 
 

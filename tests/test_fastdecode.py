@@ -129,3 +129,33 @@ def test_bad_crc_and_bad_length_are_refused() -> None:
     with pytest.raises(DecodeError) as err:
         fd.decode(bytes(fr[:-3]))
     assert err.value.reason == "invalid_frame"
+
+
+def test_decode_at_reads_a_frame_in_place_as_decode_does() -> None:
+    """A tlog's frames are decoded where they lie in the file (``decode_at``): the same
+    messages as ``decode``, trimmed payloads, MAVLink 1 and pymavlink's messages included,
+    and the same refusals."""
+    frames = _raw_frames(TLOGS / "ardupilot_sitl_servo_mount_roi.tlog")[:3000]
+    info = [1, [0] * 32, [0] * 32, 0, 4.0, 6.4, 4.8, 640, 480, 0, 0, 0, b"", 0, 0]
+    frames += [
+        frame("LOCAL_POSITION_NED", 10, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),  # trailing zeros trimmed
+        frame("ATTITUDE", 10, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0, v1=True),
+        frame("GIMBAL_DEVICE_ATTITUDE_STATUS", 0, 0, 5, 0x2C, [1.0, 0, 0, 0], 0, 0, 0, 0, 0, 0, 1),
+        frame("CAMERA_INFORMATION", *info),  # a string: pymavlink's decoder
+    ]
+    fd = FastDecoder({MSG_ID[n] for n in USED})
+    buf = b"\x00" * 7 + b"".join(frames)
+    i = 7
+    for fr in frames:
+        msgid = fr[7] | (fr[8] << 8) | (fr[9] << 16) if fr[0] == 0xFD else fr[5]
+        a, b = fd.decode_at(buf, i, i + len(fr), msgid), fd.decode(fr)
+        assert type(a) is type(b) and a.get_type() == b.get_type()
+        assert repr(a.to_dict() if hasattr(a, "to_dict") else tuple(a)) == repr(
+            b.to_dict() if hasattr(b, "to_dict") else tuple(b)
+        )
+        i += len(fr)
+    bad = bytearray(frame("ATTITUDE", 10, 0.1, 0.2, 0.3, 0.01, 0.02, 0.03))
+    bad[12] ^= 1
+    with pytest.raises(DecodeError) as err:
+        fd.decode_at(bytes(bad), 0, len(bad), MSG_ID["ATTITUDE"])
+    assert err.value.reason == "bad_crc"

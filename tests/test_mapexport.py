@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from mav_observer import mapexport
+from mav_observer.core.samples import Estimate, Status
 from mav_observer.geodesy import Origin, to_geodetic
 from mav_observer.records import EstimateRecord
-from mav_observer.samples import Estimate, Status
 from sim import scenarios
 from sim.emitter import Emitter, EmitterConfig, run
 from sim.inject import split_records

@@ -9,6 +9,7 @@ import time
 import numpy as np
 import pytest
 
+from mav_observer.core.samples import Estimate, Status
 from mav_observer.frames import euler_to_dcm
 from mav_observer.geodesy import Origin
 from mav_observer.mavlink import adapters
@@ -22,7 +23,6 @@ from mav_observer.mavlink.out import (
     statustext,
 )
 from mav_observer.records import EstimateRecord
-from mav_observer.samples import Estimate, Status
 from sim.live import free_port
 
 ORIGIN = Origin(-35.363261, 149.16523, 584.0, "GPS_GLOBAL_ORIGIN")

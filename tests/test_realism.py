@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.mavlink.dialect import MSG_ID, codec
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
-from mav_observer.observer import ObserverConfig
 from sim import emitter as em
 from sim import realism, scenarios
 

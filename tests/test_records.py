@@ -2,14 +2,13 @@
 
 import json
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from mav_observer.core.samples import Estimate, Status
 from mav_observer.geodesy import Origin, to_geodetic
 from mav_observer.records import CSV_COLUMNS, SCHEMA_VERSION, EstimateRecord
-from mav_observer.samples import Estimate, Status
 
 REQUIRED = {
     "schema", "t_unix_s", "sysid", "target", "rel_pos_ned_m", "range_m", "bias_ned_mps",
@@ -81,7 +80,7 @@ def test_json_is_the_dict_rounded_to_the_documented_resolution() -> None:
             bool(rng.integers(2)), 0.0, 0.0, 0.0,
         )  # fmt: skip
         if rng.integers(2):
-            est = replace(est, x_std_m=np.abs(rng.normal(0.0, 3.0, 3)))
+            est = est._replace(x_std_m=np.abs(rng.normal(0.0, 3.0, 3)))
         vpos = None if rng.integers(4) == 0 else tuple(rng.normal(0.0, 500.0, 3).tolist())
         origin = ORIGIN if rng.integers(2) else None
         r = EstimateRecord(
@@ -116,7 +115,7 @@ def test_the_target_on_the_map_once_the_origin_is_known() -> None:
     position's (vehicle + relative) on WGS84, the horizontal 1-sigma the root sum of the
     north and east ones, the vertical the down one; in JSON, the dict and CSV alike. Without
     an origin (or a vehicle position) they are null."""
-    est = replace(_est(), x_std_m=np.array([0.3, 0.4, 1.2]))
+    est = _est()._replace(x_std_m=np.array([0.3, 0.4, 1.2]))
     r = EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (10.0, 20.0, -15.0), ORIGIN)
     lat, lon, alt = to_geodetic(ORIGIN, (13.0, 24.0, -3.0))
     d = r.to_dict()
@@ -141,7 +140,7 @@ def test_a_non_finite_standard_deviation_is_null_alone_and_the_map_fields_withou
     """The vectors and the map fields written in one format when every value is known fall
     back to value by value otherwise: a NaN sigma is null where it is, and without sigmas the
     target is still on the map with null sigmas."""
-    est = replace(_est(), x_std_m=np.array([0.3, math.nan, 1.2]), a_std_mps=np.array([0.01] * 3))
+    est = _est()._replace(x_std_m=np.array([0.3, math.nan, 1.2]), a_std_mps=np.array([0.01] * 3))
     j = json.loads(
         EstimateRecord(1.0, 2.0, 1, "gimbal", "G", est, (1.0, 2.0, 3.0), ORIGIN).to_json()
     )

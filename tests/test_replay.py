@@ -17,8 +17,8 @@ from mavmsg import TLOGS
 from mav_observer import reference
 from mav_observer import replay as rp
 from mav_observer.cli import main
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.observer import ObserverConfig
 from sim import fuzz, scenarios
 from sim.emitter import BEARINGS, TARGET_OF, Emitter, EmitterConfig, run
 from sim.live import free_port

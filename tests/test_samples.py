@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from mav_observer.core.samples import BearingSample, Estimate, Status, VelocitySample
 from mav_observer.errors import InvalidSampleError, MavObserverError
-from mav_observer.samples import BearingSample, Estimate, Status, VelocitySample
 
 
 def test_velocity_sample_is_frozen_copy() -> None:

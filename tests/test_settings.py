@@ -123,7 +123,7 @@ def test_printed_settings_read_back_to_the_same(tmp_path: Path) -> None:
 def test_the_observer_settings_are_the_dataclass_fields_with_its_defaults() -> None:
     from dataclasses import fields
 
-    from mav_observer.observer import ObserverConfig
+    from mav_observer.core.observer import ObserverConfig
 
     d = st.defaults()["observer"]
     ours = {f.name: f.default for f in fields(ObserverConfig)}

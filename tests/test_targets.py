@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.errors import StateError
-from mav_observer.observer import ObserverConfig
 from mav_observer.targets import Targets, VehicleFix, check_saved
 
 TARGET_NED_M = np.array([20.0, 5.0, 10.0])

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 from mavmsg import T0_UNIX, landing_target_fields, message
 
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.errors import ConfigError, StateError
 from mav_observer.mavlink import tracker as tracker_mod
 from mav_observer.mavlink.dialect import codec
 from mav_observer.mavlink.tracker import Tracker, TrackerConfig
-from mav_observer.observer import ObserverConfig
 from sim import fuzz
 
 NAN = float("nan")
@@ -218,14 +218,22 @@ def test_saved_observers_are_dropped_after_a_reboot_or_a_long_gap() -> None:
     assert tr3.events["restore_discarded"] == 1
 
 
+def _unstarted(e: dict) -> None:
+    """A saved observer made to look as if it never started."""
+    from mav_observer.core.kernels import layout as L
+
+    data = e["observer"]["arrays"]["s"]["data"]
+    data[L.S_T_C], data[L.S_STARTED] = None, 0.0
+
+
 @pytest.mark.parametrize(
     ("mutate", "match"),
     [
         (lambda e: e.update(sysid=0), r"observers\[0\]\.sysid"),
         (lambda e: e.update(target=""), r"observers\[0\]\.target"),
         (lambda e: e["vehicle"].update(pos_ned_m=[0.0, 1.0]), r"observers\[0\]\.vehicle"),
-        (lambda e: e["observer"].update(t_c=None), r"observers\[0\]\.observer must be a started"),
-        (lambda e: e["observer"].pop("kalman"), r"observers\[0\]\.observer: .*'kalman'"),
+        (_unstarted, r"observers\[0\]\.observer must be a started"),
+        (lambda e: e["observer"].pop("arrays"), r"observers\[0\]\.observer: .*'arrays'"),
     ],
 )
 def test_restoring_bad_entries_names_them(mutate, match: str) -> None:

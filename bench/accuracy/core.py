@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mav_observer.riccati import tangent_basis
 from sim import scenarios
 from sim.scenarios import Scenario
 from sim.stream import Noise, perturb_bearings, sample_times
@@ -178,8 +177,10 @@ def crlb(
 def _bearing_info(x: np.ndarray, sigma_rad: float) -> np.ndarray:
     """The information of a bearing on the position, ``H_k^T H_k / sigma^2`` (T, n, n)."""
     r = np.linalg.norm(x, axis=1)
-    e = tangent_basis(x / r[:, None])  # (T, n, n-1)
-    return np.einsum("tij,tkj->tik", e, e) / (r[:, None, None] ** 2 * sigma_rad**2)
+    u = x / r[:, None]
+    # E E^T over the tangent plane's orthonormal basis E is the projection I - u u^T
+    proj = np.eye(x.shape[1]) - u[:, :, None] * u[:, None, :]
+    return proj / (r[:, None, None] ** 2 * sigma_rad**2)
 
 
 def gauss_markov_step(

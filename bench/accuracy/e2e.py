@@ -48,8 +48,8 @@ import numpy as np
 from bench.accuracy import blocks, core, geo
 from bench.accuracy.report import markdown_table
 from mav_observer import settings as st
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.observer import ObserverConfig
 from mav_observer.replay import replay
 from sim import emitter as em
 from sim import realism, scenarios

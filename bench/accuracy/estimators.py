@@ -6,9 +6,9 @@ Every estimator handles ``R`` runs at once (leading dimension ``R``)::
     est.step(t, h, dx, v, y)    # next sample, h s later: dx = integral of v (R, n)
     x, a, p = est.estimate()    # (R, n), (R, n), (R, 2n, 2n) or None
 
-Batched (numpy, one call per step for all runs): ``riccati`` (the product's bank,
-:mod:`mav_observer.riccati`), and the baselines ``ekf`` and ``plkf`` (built here from the
-product's pure ``predict``/``update``; they are not part of the product). Per run, through
+Batched (one call per step for all runs, the product's compiled kernels over the runs:
+:mod:`.bankruns`): ``riccati`` (the product's filter bank), and the baselines ``ekf`` and
+``plkf`` (one filter of the bank's each; they are not part of the product). Per run, through
 the service's interface (``BiasObserver.update_velocity`` / ``update_bearing``): the paper's
 observer with gains (0.5, 5) as ``paper`` and (0.2, 0.2) as ``observer02``, and with
 ``--per-sample`` the product's default estimator as ``riccati``.
@@ -22,15 +22,16 @@ from typing import Protocol
 
 import numpy as np
 
-from mav_observer import riccati as rc
-from mav_observer.observer import (
+from mav_observer.core.config import BankParams
+from mav_observer.core.observer import (
     BEARING_NOISE_PRIOR_DEG,
     BiasObserver,
     ObserverConfig,
     outlier_nis,
 )
-from mav_observer.samples import BearingSample, VelocitySample
+from mav_observer.core.samples import BearingSample, VelocitySample
 
+from .bankruns import BankRuns, FilterRuns, initial_covariance
 from .core import SIGMA_FLOOR_RAD
 
 BATCHED = ("riccati", "ekf", "plkf", "riccati_auto")
@@ -59,8 +60,8 @@ class Estimator(Protocol):
 
 
 class Riccati:
-    """The product default: the bank of :mod:`mav_observer.riccati` (EKF hypotheses in range
-    plus a Riccati observer that re-seeds them)."""
+    """The product default: the filter bank (EKF hypotheses in range plus a Riccati
+    observer that re-seeds them), :mod:`mav_observer.core.kernels.bank`."""
 
     name = "riccati"
 
@@ -68,22 +69,23 @@ class Riccati:
         # the product's settings when told the noise (robust weighting of gross errors on);
         # learn: the bearing noise learnt from the product's prior instead
         sigma = math.radians(BEARING_NOISE_PRIOR_DEG) if learn else max(sigma_rad, SIGMA_FLOOR_RAD)
-        self.prm = rc.BankParams(
+        self.prm = BankParams(
             sigma_rad=sigma, q_x=q_x, outlier_nis=outlier_nis(n - 1), learn_noise=learn
         )
+        self.n = n
         if learn:
             self.name = "riccati_auto"
 
     def start(self, t0: float, y0: np.ndarray, v0: np.ndarray, r0: np.ndarray) -> None:
         # seeded at the first bearing, which is not applied again (as in BiasObserver)
-        self.bank = rc.bank_start(y0, r0, self.prm)
+        self.bank = BankRuns(self.prm, y0.shape[0], y0.shape[1])
+        self.bank.start(y0, r0)
 
     def step(self, t: float, h: float, dx: np.ndarray, v: np.ndarray, y: np.ndarray) -> None:
-        rc.bank_predict(self.bank, dx, h, self.prm)
-        rc.bank_update(self.bank, y, h, self.prm)
+        self.bank.step(dx, h, y)
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        return rc.bank_estimate(self.bank)
+        return self.bank.estimate()
 
 
 class Kalman:
@@ -102,24 +104,20 @@ class Kalman:
         self.range_std = 1.0 if self.tracking else 3.0
 
     def start(self, t0: float, y0: np.ndarray, v0: np.ndarray, r0: np.ndarray) -> None:
-        self.r0 = np.asarray(r0, dtype=float)
-        self.x = self.r0[:, None] * y0
-        self.a = np.zeros_like(y0)
-        self.p = rc.initial_covariance(y0, self.r0, self.range_std * self.r0, 5.0, self.sigma)
-        self._update(y0)
-
-    def _update(self, y: np.ndarray) -> None:
-        lo, hi = (0.0, math.inf) if self.tracking else (self.r0, self.r0)
-        self.x, self.a, self.p, _, _ = rc.update(
-            self.x, self.a, self.p, y, self.sigma, self.tracking, lo, hi
-        )
+        r0 = np.asarray(r0, dtype=float)
+        p0 = initial_covariance(y0, r0, self.range_std * r0, 5.0, self.sigma)
+        # the tracking form: r_w 0; the pseudo-linear one: the constant weight range r0
+        r_w = np.zeros_like(r0) if self.tracking else r0
+        self.f = FilterRuns(r0[:, None] * y0, p0, r_w, self.sigma, self.q_x)
+        self.f.update(y0)
 
     def step(self, t: float, h: float, dx: np.ndarray, v: np.ndarray, y: np.ndarray) -> None:
-        self.x, self.a, self.p = rc.predict(self.x, self.a, self.p, dx, h, self.q_x, 0.0)
-        self._update(y)
+        self.f.predict(dx, h)
+        self.f.update(y)
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        return self.x, self.a, self.p
+        n = self.f.s.shape[1] // 2
+        return self.f.s[:, :n], self.f.s[:, n:], self.f.p
 
 
 def service_config(

@@ -36,8 +36,8 @@ import numpy as np
 from bench.accuracy import blocks
 from bench.accuracy.report import markdown_table
 from mav_observer.batch import displacement_at, fit_batch
+from mav_observer.core.observer import ObserverConfig
 from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.observer import ObserverConfig
 from mav_observer.replay import ReplayError, replay
 from sim import inject as inj
 from sim.tlogs import find_tlogs

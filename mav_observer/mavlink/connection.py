@@ -25,7 +25,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import os
 import select
 import socket
 import time
@@ -37,21 +36,13 @@ from mav_observer.errors import ConfigError
 from mav_observer.mavlink import signing
 from mav_observer.mavlink.dialect import connect, mavlink, type_key
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
+from mav_observer.mavlink.sources import URL_PREFIXES, is_file_source  # noqa: F401 (its home)
 
 log = logging.getLogger(__name__)
 
 SOURCE_SYSTEM = 254
 SOURCE_COMPONENT = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
 AUTO = "auto"
-
-URL_PREFIXES = ("udp:", "udpin:", "udpout:", "udpbcast:", "tcp:", "tcpin:", "serial:", "mcast:")
-
-
-def is_file_source(source: str) -> bool:
-    """True if ``source`` names a file to replay rather than a connection string."""
-    if source.startswith(URL_PREFIXES):
-        return False
-    return os.path.isfile(source) and not source.startswith("/dev/")
 
 
 def default_heartbeat_period_s(source: str) -> float | None:

@@ -5,9 +5,13 @@ pymavlink picks its protocol version from the ``MAVLINK20`` environment variable
 ``mavutil`` is first imported, so this module sets it before importing anything from
 pymavlink. Import pymavlink through here, never directly.
 
-``mavutil`` (the links) is imported when first used (:func:`connect`, or ``dialect.mavutil``):
-it brings every MAVLink 1 and 2 dialect with it, a third of a replay's start-up, and reading
-a log needs none of it.
+Neither the dialect's module (``dialect.mavlink``) nor ``mavutil`` (the links) is imported
+before it is first used: the dialect is 2 MB of Python, a tenth of a replay's start-up, and
+``mavutil`` brings every MAVLink 1 and 2 dialect with it; reading a log needs neither. The
+message names by id, and the wire layout of the messages the tracker uses
+(:data:`TABLE_MESSAGES`), come from :mod:`~mav_observer.mavlink._dialect_table`, written from
+the dialect by ``python -m mav_observer.mavlink.dialect`` and used only while the installed
+pymavlink is the one it was written from (else they come from the dialect itself).
 """
 
 from __future__ import annotations
@@ -16,21 +20,90 @@ import os
 
 os.environ["MAVLINK20"] = "1"
 
+import sys
 from typing import TYPE_CHECKING, Any
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
+import pymavlink
 
 if TYPE_CHECKING:
     from pymavlink import mavutil
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 DIALECT = "ardupilotmega"
+_DIALECT_MODULE = f"pymavlink.dialects.v20.{DIALECT}"
 
-#: Message id by name, and name by id, for the whole dialect.
-MSG_ID: dict[str, int] = {
-    cls.msgname: msgid
-    for msgid, cls in mavlink.mavlink_map.items()  # type: ignore[attr-defined]
-}
-MSG_NAME: dict[int, str] = {v: k for k, v in MSG_ID.items()}
+#: The messages whose wire layout the table holds: those the tracker may ask a reader for.
+TABLE_MESSAGES = (
+    "HEARTBEAT", "SYSTEM_TIME", "LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION",
+    "GPS_GLOBAL_ORIGIN", "HOME_POSITION", "GLOBAL_POSITION_INT", "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "CAMERA_TRACKING_IMAGE_STATUS", "CAMERA_FOV_STATUS", "CAMERA_INFORMATION",
+    "MOUNT_ORIENTATION", "MOUNT_STATUS", "LANDING_TARGET",
+)  # fmt: skip
+
+#: A message's wire layout: ``(name, field names, struct format of the payload in wire
+#: order, the wire position of each field in declared order, each wire field's array length,
+#: CRC extra byte, True if a field is a string)``.
+Wire = tuple[str, tuple[str, ...], str, tuple[int, ...], tuple[int, ...], int, bool]
+
+
+def _fingerprint() -> tuple[str, int]:
+    """pymavlink's version and the size of the dialect's source, or ``("", -1)``."""
+    path = os.path.join(os.path.dirname(pymavlink.__file__), "dialects", "v20", f"{DIALECT}.py")
+    try:
+        return pymavlink.__version__, os.path.getsize(path)
+    except (AttributeError, OSError):
+        return "", -1
+
+
+def _load_table() -> Any:
+    """The shipped table if it was written from the installed dialect, else ``None``."""
+    from mav_observer.mavlink import _dialect_table as table
+
+    return table if _fingerprint() == table.FINGERPRINT else None
+
+
+_TABLE = _load_table()
+
+
+def _mavlink() -> Any:
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega
+
+
+def wire_of(msgtype: Any) -> Wire:
+    """The :data:`Wire` layout of one of the dialect's message classes."""
+    return (
+        msgtype.msgname,
+        tuple(msgtype.fieldnames),
+        msgtype.unpacker.format,
+        tuple(msgtype.orders),
+        tuple(msgtype.lengths),
+        msgtype.crc_extra,
+        "char" in msgtype.fieldtypes,
+    )
+
+
+if _TABLE is not None:
+    #: Message id by name, and name by id, for the whole dialect.
+    MSG_NAME: dict[int, str] = dict(_TABLE.MSG_NAME)
+    _WIRE: dict[int, Wire] = _TABLE.WIRE
+else:  # another pymavlink than the table's: from the dialect itself
+    MSG_NAME = {i: c.msgname for i, c in _mavlink().mavlink_map.items()}
+    _WIRE = {}
+MSG_ID: dict[str, int] = {name: msgid for msgid, name in MSG_NAME.items()}
+
+
+def wire(msgid: int) -> Wire | None:
+    """The wire layout of message ``msgid`` (from the table when it has it, else from the
+    dialect), ``None`` for an id the dialect does not define."""
+    w = _WIRE.get(msgid)
+    if w is None:
+        msgtype = _mavlink().mavlink_map.get(msgid)
+        if msgtype is None:
+            return None
+        w = wire_of(msgtype)
+    return w
 
 
 def type_key(msg: object) -> str:
@@ -48,11 +121,14 @@ def msg_name(msgid: int) -> str:
 
 def codec(src_system: int = 255, src_component: int = 190) -> mavlink.MAVLink:
     """A MAVLink 2 encoder/decoder with no transport (``pack``/``decode`` only)."""
-    return mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+    return _mavlink().MAVLink(None, srcSystem=src_system, srcComponent=src_component)
 
 
 def __getattr__(name: str) -> Any:
-    if name == "mavutil":  # imported when first asked for (see the module's docstring)
+    # imported when first asked for (see the module's docstring)
+    if name == "mavlink":
+        return _mavlink()
+    if name == "mavutil":
         from pymavlink import mavutil
 
         return mavutil
@@ -73,4 +149,40 @@ def connect(url: str, **kwargs: object) -> mavutil.mavfile:
     return conn
 
 
-__all__ = ["DIALECT", "MSG_ID", "MSG_NAME", "codec", "connect", "mavlink", "mavutil", "msg_name"]
+def table_source() -> str:
+    """The text of :mod:`~mav_observer.mavlink._dialect_table` for the installed dialect."""
+    mavlink_map = _mavlink().mavlink_map
+    ids = {c.msgname: i for i, c in mavlink_map.items()}
+    lines = [
+        f'"""pymavlink\'s {DIALECT} dialect in short: do not edit, written by',
+        "``python -m mav_observer.mavlink.dialect``.",
+        "",
+        "The dialect's message names by id (in the dialect's order), and the wire layout",
+        "(:data:`~mav_observer.mavlink.dialect.Wire`) of the messages in",
+        ":data:`~mav_observer.mavlink.dialect.TABLE_MESSAGES`, used while :data:`FINGERPRINT`",
+        'is the installed pymavlink\'s."""',
+        "",
+        "# ruff: noqa: E501",
+        "# fmt: off",
+        f"FINGERPRINT = {_fingerprint()!r}",
+        "MSG_NAME = {",
+        *(f"    {i}: {c.msgname!r}," for i, c in mavlink_map.items()),
+        "}",
+        "WIRE = {",
+        *(f"    {ids[n]}: {wire_of(mavlink_map[ids[n]])!r}," for n in TABLE_MESSAGES),
+        "}",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+__all__ = [
+    "DIALECT", "MSG_ID", "MSG_NAME", "TABLE_MESSAGES", "Wire", "codec", "connect", "mavlink",
+    "mavutil", "msg_name", "type_key", "wire", "wire_of",
+]  # fmt: skip
+
+if __name__ == "__main__":  # write the table for the installed pymavlink
+    out = os.path.join(os.path.dirname(os.path.abspath(__file__)), "_dialect_table.py")
+    with open(out, "w", encoding="utf-8") as fh:
+        fh.write(table_source())
+    sys.stdout.write(f"wrote {out}\n")

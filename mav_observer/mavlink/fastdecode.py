@@ -18,10 +18,12 @@ from __future__ import annotations
 
 from collections import namedtuple
 from operator import itemgetter
+from struct import Struct
 from struct import error as StructError
 from typing import Any
 
-from mav_observer.mavlink.dialect import mavlink
+from mav_observer.mavlink import dialect
+from mav_observer.mavlink.dialect import Wire
 
 try:
     from fastcrc.crc16 import mcrf4xx as _crc16
@@ -66,27 +68,27 @@ def _message_class(name: str, fields: list[str]) -> type:
 class _Plan:
     """How to turn one message id's payload into its fields."""
 
-    __slots__ = ("arrays", "cls", "crc_extra", "reorder", "size", "unpack")
+    __slots__ = ("cls", "crc_extra", "fields", "size", "unpack", "unpack_from")
 
-    def __init__(self, msgtype: Any) -> None:
-        self.crc_extra = bytes([msgtype.crc_extra])
-        self.unpack = msgtype.unpacker.unpack
-        self.size = msgtype.unpacker.size
-        orders, lengths = msgtype.orders, msgtype.lengths
-        self.cls = _message_class(msgtype.msgname, list(msgtype.fieldnames))
-        if sum(lengths) == len(lengths):
-            self.arrays = None
-            self.reorder = (
-                itemgetter(*orders) if len(orders) > 1 else (lambda t, _o=orders[0]: (t[_o],))
-            )
-        else:
-            spans = []
-            for order in orders:
-                n = lengths[order]
-                tip = sum(lengths[:order])
-                spans.append((tip, n))
-            self.arrays = spans
-            self.reorder = None
+    def __init__(self, w: Wire) -> None:
+        name, fieldnames, fmt, orders, lengths, crc_extra, _ = w
+        self.crc_extra = bytes([crc_extra])
+        unpacker = Struct(fmt)
+        self.unpack = unpacker.unpack
+        self.unpack_from = unpacker.unpack_from
+        self.size = unpacker.size
+        self.cls = _message_class(name, list(fieldnames))
+        #: the unpacked payload (wire order) to the fields (declared order, arrays as
+        #: lists); ``None`` where they are the same
+        self.fields: Any = None
+        if sum(lengths) != len(lengths):
+            # written out (``lambda t: (t[8], [*t[1:5]], ...)``): a generator over the
+            # fields cost a third of a decode
+            spans = [(sum(lengths[:order]), lengths[order]) for order in orders]
+            terms = [f"t[{tip}]" if n == 1 else f"[*t[{tip}:{tip + n}]]" for tip, n in spans]
+            self.fields = eval(f"lambda t: ({', '.join(terms)},)")
+        elif list(orders) != list(range(len(orders))):
+            self.fields = itemgetter(*orders) if len(orders) > 1 else lambda t: (t[orders[0]],)
 
 
 def supports(msgtype: Any) -> bool:
@@ -94,18 +96,35 @@ def supports(msgtype: Any) -> bool:
     return "char" not in msgtype.fieldtypes and _crc16 is not None
 
 
+_new = tuple.__new__
+
+
 class FastDecoder:
     """Decode frames of the given message ids (others, and string-bearing ones, through
-    pymavlink). ``decode(frame)`` takes the raw frame bytes (bytes or memory slices)."""
+    pymavlink). ``decode(frame)`` takes the raw frame bytes (bytes or memory slices);
+    :meth:`decode_at` a whole frame inside a larger buffer (a tlog's)."""
 
     def __init__(self, msgids: frozenset[int] | set[int] | None = None) -> None:
-        self._fallback = mavlink.MAVLink(None)
+        self._fallback: Any = None
         self._plans: dict[int, _Plan] = {}
-        ids = mavlink.mavlink_map.keys() if msgids is None else msgids
+        ids = dialect.mavlink.mavlink_map.keys() if msgids is None else msgids
         for msgid in ids:
-            msgtype = mavlink.mavlink_map.get(msgid)
-            if msgtype is not None and supports(msgtype):
-                self._plans[msgid] = _Plan(msgtype)
+            w = dialect.wire(msgid)
+            if w is not None and not w[6] and _crc16 is not None:
+                self._plans[msgid] = _Plan(w)
+
+    def _pymavlink(self, frame: Any) -> Any:
+        """``frame`` decoded by pymavlink (made when first needed: its dialect is imported
+        then)."""
+        mavlink = dialect.mavlink
+        if self._fallback is None:
+            self._fallback = mavlink.MAVLink(None)
+        try:
+            return self._fallback.decode(bytearray(frame))
+        except mavlink.MAVError as exc:
+            raise DecodeError(
+                "bad_crc" if "CRC" in str(exc) else "invalid_frame", str(exc)
+            ) from exc
 
     def decode(self, frame: bytes) -> Any:
         if frame[0] == 0xFD:
@@ -118,12 +137,7 @@ class FastDecoder:
             siglen = 0
         plan = self._plans.get(msgid)
         if plan is None:
-            try:
-                return self._fallback.decode(bytearray(frame))
-            except mavlink.MAVError as exc:
-                raise DecodeError(
-                    "bad_crc" if "CRC" in str(exc) else "invalid_frame", str(exc)
-                ) from exc
+            return self._pymavlink(frame)
         plen = frame[1]
         end = hlen + plen
         if len(frame) != end + 2 + siglen:
@@ -140,10 +154,30 @@ class FastDecoder:
             t = plan.unpack(payload)
         except StructError as exc:
             raise DecodeError("invalid_frame", str(exc)) from exc
-        if plan.arrays is None:
-            values = plan.reorder(t)
-        else:
-            values = tuple(t[tip] if n == 1 else list(t[tip : tip + n]) for tip, n in plan.arrays)
+        if plan.fields is not None:
+            t = plan.fields(t)
         if hlen == 10:
-            return plan.cls(*values, frame[5], frame[6])
-        return plan.cls(*values, frame[3], frame[4])
+            return _new(plan.cls, (*t, frame[5], frame[6]))
+        return _new(plan.cls, (*t, frame[3], frame[4]))
+
+    def decode_at(self, buf: Any, start: int, end: int, msgid: int) -> Any:
+        """The frame ``buf[start:end]`` of message ``msgid`` decoded, as :meth:`decode` would;
+        the frame must be whole (its length the one its header gives), as a tlog reader
+        finds it. A payload of the message's full size is read in place."""
+        plan = self._plans.get(msgid)
+        if plan is None:
+            return self.decode(buf[start:end])
+        plen = buf[start + 1]
+        if buf[start] == 0xFD:  # where the system and component ids are, where the CRC is
+            src, body = start + 5, start + 10 + plen
+        else:
+            src, body = start + 3, start + 6 + plen
+        if _crc16(buf[start + 1 : body] + plan.crc_extra) != buf[body] | (buf[body + 1] << 8):
+            raise DecodeError("bad_crc", f"msgid {msgid}")
+        if plen >= plan.size:
+            t = plan.unpack_from(buf, body - plen)
+        else:  # a MAVLink 2 payload whose trailing zeros were trimmed
+            t = plan.unpack(buf[body - plen : body] + bytes(plan.size - plen))
+        if plan.fields is not None:
+            t = plan.fields(t)
+        return _new(plan.cls, (*t, buf[src], buf[src + 1]))

@@ -15,7 +15,6 @@ A key is never accepted on the command line: it would show in the process list.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import stat
@@ -59,6 +58,8 @@ def load_key(path: str | os.PathLike[str], *, setting: str = "mavlink.signing_ke
             return bytes.fromhex(text)
         except ValueError:
             pass  # 64 characters that are not all hex: a passphrase
+    import hashlib  # (a key file's alone: a fiftieth of a replay's start-up)
+
     return hashlib.sha256(text.encode("utf-8")).digest()
 
 

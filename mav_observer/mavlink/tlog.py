@@ -27,8 +27,10 @@ from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from struct import Struct, unpack_from
+from struct import unpack_from
 from typing import Any
+
+import numpy as np
 
 from mav_observer.mavlink.dialect import msg_name
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
@@ -165,49 +167,61 @@ class TlogReader:
         st = self.stats
         by_id = st.by_id
         decoder = FastDecoder(self.wanted)
-        decode = decoder.decode
-        unpack_ts = Struct(">Q").unpack_from
+        decode = decoder.decode_at
+        scan = _Scan(buf, n)
         last_ts: int | None = None
         i = 0
         records = time_back = 0
         try:
             while i < n:
-                # header of the record at i, inlined from _frame_at (this loop is the hot path)
-                ok = False
-                if i + 18 <= n:
-                    magic = buf[i + 8]
-                    if magic == MAGIC_V2:
-                        flen = 12 + buf[i + 9] + (13 if buf[i + 10] & 1 else 0)
-                        msgid = buf[i + 15] | (buf[i + 16] << 8) | (buf[i + 17] << 16)
-                        ok = True
-                    elif magic == MAGIC_V1:
-                        flen = 8 + buf[i + 9]
-                        msgid = buf[i + 13]
-                        ok = True
-                if ok:
-                    ts = unpack_ts(buf, i)[0]
-                    ok = TS_MIN_US <= ts <= TS_MAX_US and (
-                        last_ts is None or -TS_JUMP_MAX_US <= ts - last_ts <= TS_JUMP_MAX_US
-                    )
-                if not ok:
-                    hdr = _frame_at(buf, i, n)  # short final record, or damage
-                    if hdr is not None and self._plausible(hdr[0], last_ts) and i + 8 + hdr[2] <= n:
-                        ts, msgid, flen = hdr
-                    else:
-                        if self._cut_record(buf, i, n, last_ts):
-                            st.truncated_tail = True
-                            st.skipped_bytes += n - i
-                            break
-                        j = self._resync(buf, i, n, last_ts)
-                        st.resyncs += 1
-                        st.skipped_bytes += j - i
-                        i = j
-                        continue
+                clean = scan.clean_from(i, last_ts)
+                if clean is not None:
+                    # a run of records whose headers and timestamps are sound: counted by
+                    # their headers at once, only the wanted ones decoded, one by one
+                    pos, ends, stamps, ids = clean
+                    records += len(pos)
+                    for msgid, count in _first_seen_counts(ids):
+                        by_id[msgid] += count
+                    if last_ts is None:
+                        st.first_t_unix_s = int(stamps[0]) * 1e-6
+                    elif stamps[0] < last_ts:
+                        time_back += 1
+                    time_back += int(np.count_nonzero(stamps[1:] < stamps[:-1]))
+                    last_ts = int(stamps[-1])
+                    i = int(ends[-1])
+                    wanted = self.wanted
+                    if wanted is not None:
+                        sel = np.flatnonzero(np.isin(ids, np.fromiter(wanted, np.int64)))
+                        pos, ends, stamps, ids = pos[sel], ends[sel], stamps[sel], ids[sel]
+                    for start, end, ts, msgid in zip(
+                        pos.tolist(), ends.tolist(), stamps.tolist(), ids.tolist(), strict=True
+                    ):
+                        wanted = self.wanted  # (:meth:`drop` may have been called meanwhile)
+                        if wanted is not None and msgid not in wanted:
+                            continue
+                        try:
+                            msg = decode(buf, start + 8, end, msgid)
+                        except DecodeError as exc:
+                            st.decode_errors[exc.reason] += 1
+                        else:
+                            self.position = end
+                            yield ts * 1e-6, msg
+                    continue
+                # one record the fast path does not take: the end of the file, or damage
+                hdr = _frame_at(buf, i, n)
+                if hdr is not None and self._plausible(hdr[0], last_ts) and i + 8 + hdr[2] <= n:
+                    ts, msgid, flen = hdr
+                else:
+                    if self._cut_record(buf, i, n, last_ts):
+                        st.truncated_tail = True
+                        st.skipped_bytes += n - i
+                        break
+                    j = self._resync(buf, i, n, last_ts)
+                    st.resyncs += 1
+                    st.skipped_bytes += j - i
+                    i = j
+                    continue
                 end = i + 8 + flen
-                if end > n:
-                    st.truncated_tail = True
-                    st.skipped_bytes += n - i
-                    break
                 records += 1
                 by_id[msgid] += 1
                 if last_ts is None:
@@ -218,7 +232,7 @@ class TlogReader:
                 wanted = self.wanted
                 if wanted is None or msgid in wanted:
                     try:
-                        msg = decode(buf[i + 8 : end])
+                        msg = decode(buf, i + 8, end, msgid)
                     except DecodeError as exc:
                         st.decode_errors[exc.reason] += 1
                     else:
@@ -226,8 +240,101 @@ class TlogReader:
                         yield ts * 1e-6, msg
                 i = end
         finally:
+            scan.close()
             st.records += records
             st.time_backwards += time_back
             self.position = max(self.position, i)
             if last_ts is not None:
                 st.last_t_unix_s = last_ts * 1e-6
+
+
+def _first_seen_counts(ids: Any) -> list[tuple[int, int]]:
+    """``(msgid, count)`` of the ids in ``ids``, in the order of their first occurrence (the
+    order in which counting them one by one would have met them)."""
+    uniq, first, counts = np.unique(ids, return_index=True, return_counts=True)
+    order = np.argsort(first, kind="stable")
+    return list(zip(uniq[order].tolist(), counts[order].tolist(), strict=True))
+
+
+#: Bytes of the file whose candidate record starts :class:`_Scan` finds at once.
+SCAN_WINDOW = 1 << 22
+
+
+class _Scan:
+    """The reader's fast path: runs of sound records found with numpy, a window of the file at
+    a time.
+
+    A candidate is a position whose byte 8 is a MAVLink magic byte and whose header lies in
+    the file; each is linked to the candidate right after its frame when that one's timestamp
+    is within the plausible range and within a week of its own. From a sound record, the
+    links give the records that the byte-by-byte reading of :meth:`TlogReader._records` would
+    accept as they are, up to the first one it would look at more closely (damage, the end of
+    the file, or the end of the window), which is left to it.
+    """
+
+    def __init__(self, buf: Any, n: int) -> None:
+        self.buf: Any = np.frombuffer(buf, dtype=np.uint8) if n else None
+        self.n = n
+        self.lo = self.hi = 0  # the window: candidates at positions in [lo, hi)
+        self.pos: Any = None
+        self.links: list[int] = []
+
+    def close(self) -> None:
+        """Let go of the file's memory (the map cannot close while a view of it exists)."""
+        self.buf = None
+
+    def _window(self, lo: int) -> None:
+        a, n = self.buf, self.n
+        hi = min(n - 17, lo + SCAN_WINDOW)  # a candidate's header ends within the file
+        self.lo, self.hi = lo, max(hi, lo)
+        pos = np.flatnonzero(np.subtract(a[lo + 8 : hi + 8], MAGIC_V2, dtype=np.uint8) < 2)
+        pos += lo
+        v2 = a[pos + 8] == MAGIC_V2
+        plen = a[pos + 9].astype(np.int64)
+        flen = np.where(v2, 12 + plen + 13 * (a[pos + 10] & 1), 8 + plen)
+        ids = np.where(
+            v2,
+            a[pos + 15]
+            | (a[pos + 16].astype(np.int64) << 8)
+            | (a[pos + 17].astype(np.int64) << 16),
+            a[pos + 13],
+        ).astype(np.int64)
+        stamps = a[pos[:, None] + np.arange(8)].view(">u8").ravel()
+        sane = (stamps >= TS_MIN_US) & (stamps <= TS_MAX_US)
+        stamps = np.where(sane, stamps, 0).astype(np.int64)
+        nxt = pos + 8 + flen
+        k = np.searchsorted(pos, nxt)
+        kk = np.minimum(k, len(pos) - 1)
+        ok = (k < len(pos)) & (pos[kk] == nxt)
+        ok &= sane[kk] & (np.abs(stamps[kk] - stamps) <= TS_JUMP_MAX_US)
+        self.pos, self.ends, self.stamps, self.ids, self.sane = pos, nxt, stamps, ids, sane
+        self.links = np.where(ok, k, -1).tolist()
+
+    def clean_from(self, i: int, last_ts: int | None) -> tuple[Any, Any, Any, Any] | None:
+        """``(starts, ends, timestamps, ids)`` (arrays) of the sound records from ``i`` on,
+        ``None`` if the record at ``i`` is not one (or ``i`` is too close to the end)."""
+        if self.buf is None:
+            return None
+        if not self.lo <= i < self.hi:
+            if i >= self.n - 17:
+                return None
+            self._window(i)
+        pos = self.pos
+        j = int(np.searchsorted(pos, i))
+        if j >= len(pos) or pos[j] != i or not self.sane[j]:
+            return None
+        ts = int(self.stamps[j])
+        if last_ts is not None and abs(ts - last_ts) > TS_JUMP_MAX_US:
+            return None
+        links = self.links
+        path = []
+        append = path.append
+        while j >= 0:
+            append(j)
+            j = links[j]
+        if self.ends[path[-1]] > self.n:  # a frame cut by the end of the file
+            path.pop()
+            if not path:
+                return None
+        sel = np.array(path, dtype=np.int64)
+        return pos[sel], self.ends[sel], self.stamps[sel], self.ids[sel]

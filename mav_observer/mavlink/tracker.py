@@ -3,7 +3,7 @@
 :class:`Tracker` takes decoded messages with their arrival (or tlog) time, keeps for each
 vehicle its clocks (:mod:`~mav_observer.mavlink.timebase`), a short attitude history, its
 latest position and velocity and its cameras' fields of view, turns bearing messages into
-:class:`~mav_observer.samples.BearingSample` through the frame chains of
+:class:`~mav_observer.core.samples.BearingSample` through the frame chains of
 :mod:`~mav_observer.mavlink.adapters`, and returns an
 :class:`~mav_observer.records.EstimateRecord` for each bearing the observers accept. A message
 that cannot be used is counted by reason and skipped; nothing already received is lost.
@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mav_observer import geodesy
+from mav_observer.core.observer import BiasObserver, ObserverConfig
+from mav_observer.core.samples import Estimate
 from mav_observer.errors import ConfigError, InvalidSampleError, MavObserverError
 from mav_observer.frames import Vec3, euler_from_dcm, euler_to_dcm, mat_vec, quat_to_dcm
 from mav_observer.geodesy import Origin
@@ -49,9 +51,7 @@ from mav_observer.mavlink.adapters import Skip
 from mav_observer.mavlink.attitude import AttitudeHistory
 from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.mavlink.timebase import ClockMap
-from mav_observer.observer import BiasObserver, ObserverConfig
 from mav_observer.records import EstimateRecord
-from mav_observer.samples import Estimate
 from mav_observer.targets import Targets, VehicleFix, check_saved
 
 if TYPE_CHECKING:  # (the smoother's sample log is made by a replay that smooths)

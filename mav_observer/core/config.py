@@ -1,7 +1,8 @@
-"""The settings of one observer (:class:`ObserverConfig`) and the constants they derive from.
+"""The settings of one observer (:class:`ObserverConfig`), of the filter bank
+(:class:`BankParams`), and the constants they derive from.
 
-Pure: validation and derived settings only. Which estimators exist is the registry's
-business (:data:`mav_observer.estimators.REGISTRY`).
+Pure: validation and derived settings only (no numba: reading the settings does not load
+the compiled estimator).
 """
 
 from __future__ import annotations
@@ -12,18 +13,17 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer import discrete, riccati
+from mav_observer.core.samples import MIN_DIM
 from mav_observer.errors import ConfigError
-from mav_observer.monitor import MonitorThresholds
-from mav_observer.samples import MIN_DIM
+
+#: The estimators ``ObserverConfig.estimator`` may name, the default first: the filter bank
+#: (``docs/estimator.md``) and the paper's observer (``docs/observer.md``).
+ESTIMATORS = ("riccati", "paper")
 
 
 def estimator_names() -> tuple[str, ...]:
     """The estimators ``ObserverConfig.estimator`` may name, the default first."""
-    # imported here: the estimators read their settings from this module
-    from mav_observer.estimators import REGISTRY
-
-    return tuple(REGISTRY)
+    return ESTIMATORS
 
 
 MODES = ("biased", "bias_free")
@@ -263,13 +263,10 @@ class ObserverConfig:
             }
         )
 
-    def bank_params(
-        self, velocity_dt_s: float, velocity_noise_mps: float | None = None
-    ) -> riccati.BankParams:
-        """The riccati estimator's settings; ``velocity_dt_s`` is the velocity's sample
-        interval (s), which turns its noise into a process noise on ``x``;
-        ``velocity_noise_mps`` the velocity noise in use (when learnt; default: the
-        setting, or its prior for ``"auto"``)."""
+    def bank_params(self, velocity_noise_mps: float | None = None) -> BankParams:
+        """The filter bank's settings; ``velocity_noise_mps`` sets its ``q_x`` per second of
+        velocity interval (default: the setting, or its prior for ``"auto"``; the observer
+        passes the one in use at every step)."""
         if velocity_noise_mps is None:
             velocity_noise_mps = (
                 VELOCITY_NOISE_PRIOR_MPS
@@ -279,12 +276,12 @@ class ObserverConfig:
         learn = self.bearing_noise_deg == AUTO
         prior_deg = BEARING_NOISE_PRIOR_DEG if learn else float(self.bearing_noise_deg)
         walk = self.bias_walk_mps_per_sqrt_s
-        return riccati.BankParams(
+        return BankParams(
             sigma_rad=math.radians(prior_deg),
             learn_noise=learn,
             noise_min_rad=math.radians(BEARING_NOISE_FLOOR_DEG),
             outlier_nis=outlier_nis(self.n - 1) if self.robust else math.inf,
-            q_x=velocity_noise_mps**2 * velocity_dt_s,
+            q_x=velocity_noise_mps**2,
             q_a=0.0 if walk == AUTO else float(walk) ** 2,
             learn_walk=walk == AUTO and self.mode == "biased",
             hypotheses=self.hypotheses,
@@ -319,23 +316,82 @@ class ObserverConfig:
         return cls(**d)
 
     # -- derived ------------------------------------------------------------------
-    def initial_state(self) -> tuple[list[float], list[float], list[float]]:
-        """``(xh1, M, ahat)`` from the configured initial ``(xh1, M, zs)`` (``M`` flat,
-        row-major); in bias-free mode ``ahat = 0`` (``zs`` is not used)."""
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The paper's ``(xh1, M, ahat)`` from the configured initial ``(xh1, M, zs)``; in
+        bias-free mode ``ahat = 0`` (``zs`` is not used)."""
         n = self.n
-        xh1 = [0.0] * n if self.xh1_0_m is None else list(self.xh1_0_m)
-        m = discrete.identity(n) if self.m_0_s is None else [v for row in self.m_0_s for v in row]
+        xh1 = np.zeros(n) if self.xh1_0_m is None else np.array(self.xh1_0_m)
+        m = np.eye(n) if self.m_0_s is None else np.array(self.m_0_s)
         if self.mode == "bias_free":
-            return xh1, m, [0.0] * n
-        zs = [0.0] * n if self.zs_0_mps is None else list(self.zs_0_mps)
-        return xh1, m, discrete.ahat_from_paper_state(xh1, m, zs)
+            return xh1, m, np.zeros(n)
+        zs = np.zeros(n) if self.zs_0_mps is None else np.array(self.zs_0_mps)
+        return xh1, m, zs - np.linalg.solve(m, xh1)
 
-    def thresholds(self) -> MonitorThresholds:
-        return MonitorThresholds(
-            max_bearing_age_s=self.max_bearing_age_s,
-            max_velocity_age_s=self.max_velocity_age_s,
-            window_s=self.window_s,
-            window_full_s=self.window_s * (self.window_buckets - 1) / self.window_buckets,
-            excitation_min=self.excitation_min,
-            converged_tol=self.converged_tol,
-        )
+
+@dataclass(frozen=True)
+class BankParams:
+    """Settings of the filter bank (``docs/estimator.md``, ``docs/tuning.md``); the
+    observer makes them from its :class:`ObserverConfig` (:meth:`ObserverConfig.bank_params`),
+    the Monte Carlo harness directly.
+
+    * ``sigma_rad``: bearing noise per tangent direction (rad; the prior when learnt).
+    * ``q_x`` (m^2/s), ``q_a`` (m^2/s^3): process noise intensities of ``x'`` (the
+      velocity's white noise) and of ``a'`` (the bias's random walk when told).
+    * ``hypotheses``, ``span``: the initial ranges ``r0 * span**u`` for ``hypotheses`` values
+      of ``u`` evenly spaced in [-1, 1], each with a standard deviation of ``range_rel_std``
+      times its range along the bearing; ``bias_std_mps`` the prior of each component of
+      ``a``.
+    * ``prune``: a hypothesis whose weight falls below it is dropped; ``prune_early`` in
+      the first ``prune_early_s`` of a run until its first re-seeding (before the vehicle's
+      motion has told the ranges apart the weights say little).
+    * ``merge_maha``: a hypothesis within this squared Mahalanobis distance of the heaviest
+      (under the sum of their covariances) is merged into it, moments matched.
+    * ``nis_gate``, ``nis_window_s``: a run whose innovations, averaged over the window,
+      exceed ``nis_gate`` times their expected value is re-seeded from its Riccati
+      observer (a re-acquisition).
+    * ``outlier_nis``: the robust threshold on a bearing's NIS (``inf``: off): beyond it the
+      bearing is down-weighted, counts in the innovation average as the threshold and in
+      the hypotheses' likelihood with a bounded loss.
+    * ``learn_noise``: learn the bearing noise online (an inverse-gamma posterior forgetting
+      over ``noise_memory_s``, the prior weighing ``noise_prior_dof`` tangent directions,
+      kept within ``[noise_min_rad, noise_max_rad]``).
+    * ``learn_walk``: learn the bias's random walk online by likelihood against two probe
+      filters a ``walk_factor`` apart (levels from ``walk_min`` to ``walk_max``, the jump
+      from 0 to ``walk_jump``), moving a level when a probe leads by ``walk_up_nats`` (up),
+      ``walk_down_nats`` (down) or ``walk_leave_nats`` (leaving 0), over ``walk_memory_s``,
+      ``walk_warmup_s`` after a seeding once the bank is down to one filter.
+    """
+
+    sigma_rad: float
+    q_x: float = 0.0
+    q_a: float = 0.0
+    hypotheses: int = 7
+    span: float = 16.0
+    range_rel_std: float = 0.4
+    bias_std_mps: float = 5.0
+    prune: float = 1e-4
+    prune_early: float = 1e-9
+    prune_early_s: float = 20.0
+    merge_maha: float = 1.0
+    nis_gate: float = 3.0
+    nis_window_s: float = 5.0
+    outlier_nis: float = math.inf
+    learn_noise: bool = False
+    noise_memory_s: float = 60.0
+    noise_prior_dof: float = 20.0
+    noise_min_rad: float = 1e-5
+    noise_max_rad: float = 0.5
+    learn_walk: bool = False
+    walk_factor: float = 4.0
+    walk_min: float = 1e-6
+    walk_jump: float = 2.5e-4
+    walk_max: float = 1.0
+    walk_up_nats: float = 6.0
+    walk_leave_nats: float = 15.0
+    walk_down_nats: float = 2.0
+    walk_memory_s: float = 60.0
+    walk_warmup_s: float = 10.0
+
+    def to_array(self) -> np.ndarray:
+        """The settings as the bank's kernels read them (``layout.P_*``, in field order)."""
+        return np.array([float(getattr(self, f.name)) for f in fields(self)])

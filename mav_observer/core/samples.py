@@ -20,11 +20,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 import numpy as np
 
 from mav_observer.errors import InvalidSampleError
-from mav_observer.whiteness import Correlation
 
 #: A bearing whose norm is within this relative distance of 1 is normalised silently;
 #: farther from unit length it is rejected as "far from unit".
@@ -158,8 +158,7 @@ class Status(StrEnum):
     STALE = "stale"
 
 
-@dataclass(frozen=True, eq=False, slots=True)
-class Estimate:
+class Estimate(NamedTuple):
     """The observer's output at time ``t_s`` (s).
 
     * ``x_m``: estimated relative position ``xhat`` (m), target minus vehicle.
@@ -181,6 +180,9 @@ class Estimate:
       over its recent bearings (about 1 when the bearings agree with the model and the noise
       setting; well above 1: more noise than told, or outliers); ``None`` for the paper's
       observer.
+
+    Immutable (a named tuple: made at every bearing, it must be cheap); ``_replace`` makes
+    a changed copy.
     """
 
     t_s: float
@@ -200,15 +202,10 @@ class Estimate:
     nis: float | None = None
 
     def with_a(self, a_mps: np.ndarray) -> Estimate:
-        """This estimate with ``a_mps`` (m/s, a read-only array) in place of its own, every
-        other field as it is (copied, not validated again: the per-bearing path)."""
-        other = object.__new__(Estimate)
-        for name in Estimate.__slots__:
-            object.__setattr__(other, name, getattr(self, name))
-        object.__setattr__(other, "a_mps", a_mps)
-        return other
+        """This estimate with ``a_mps`` (m/s, a read-only array) in place of its own."""
+        return self._replace(a_mps=a_mps)
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> dict[str, object]:  # type: ignore[override]
         """Plain JSON-serialisable form."""
         return {
             "t_s": self.t_s,
@@ -227,6 +224,64 @@ class Estimate:
             "range_std_m": self.range_std_m,
             "nis": self.nis,
         }
+
+
+#: The innovations' lag-1 correlation (``NoiseLevels.innovation_corr``): at or above this it
+#: is reported as a warning (replay's summary, the service's log) ...
+WARN_LAG1 = 0.5
+#: ... when the innovations are not much smaller than the noise in use: their mean square
+#: per tangent direction at least this fraction of its variance (noise-free emitter bearings
+#: leave innovations correlated but at 0.02 of the learnt noise's floor, which then covers
+#: them: no warning).
+WARN_VAR_RATIO = 0.25
+
+
+@dataclass(frozen=True, slots=True)
+class Correlation:
+    """``lag1``: the correlation of successive innovations, -1 to 1 (0: white);
+    ``corr_time_s``: the correlation time of an AR(1) error with that lag-1 correlation at
+    the mean interval between the bearings compared (s; ``None`` at or below 0, ``inf`` at
+    1); ``var_ratio``: the innovations' mean square per tangent direction over the bearing
+    noise variance in use (about 1 when the noise in use is the bearings'); ``pairs``: the
+    (forgotten) number of pairs it comes from."""
+
+    lag1: float
+    corr_time_s: float | None
+    var_ratio: float
+    pairs: float
+
+    @property
+    def systematic(self) -> bool:
+        """The bearing errors are systematic, and not small against the noise in use:
+        ``lag1 >= WARN_LAG1`` and ``var_ratio >= WARN_VAR_RATIO``."""
+        return self.lag1 >= WARN_LAG1 and self.var_ratio >= WARN_VAR_RATIO
+
+    def describe(self) -> str:
+        """One line for people (replay's summary, the service's log): the figures and
+        the verdict, ``WARNING: ...`` when :attr:`systematic`."""
+        over = (
+            ""
+            if self.corr_time_s is None
+            else " (correlated over ever longer)"
+            if math.isinf(self.corr_time_s)
+            else f" (correlated over {self.corr_time_s:.2g} s)"
+        )
+        head = (
+            f"innovations from one bearing to the next: correlation {self.lag1:.2f}{over}, "
+            f"{math.sqrt(self.var_ratio):.2g} times the noise in use"
+        )
+        if not self.systematic:
+            return f"{head}: " + (
+                "white, as the covariance assumes"
+                if self.lag1 < WARN_LAG1
+                else "correlated but small against the noise in use, which covers them"
+            )
+        return (
+            f"WARNING: {head}: the bearing errors are systematic (a servo mount's lag, "
+            "a misaligned gimbal, a tracker sliding on its target), not noise; "
+            "target_h_std_m is likely too small "
+            "(docs/geolocation.md, 'When the sigma is not to be trusted')"
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -248,7 +303,7 @@ class NoiseLevels:
     * ``innovation_corr``: the lag-1 correlation of successive innovations once the estimate
       is down to one filter, and its correlation time
       and the innovations' size against the noise in use
-      (:class:`~mav_observer.whiteness.Correlation`), or ``None`` (too few yet, or an
+      (:class:`Correlation`), or ``None`` (too few yet, or an
       estimator without it): near 0 when the bearing errors are white, as the covariance
       assumes; ``Correlation.systematic`` (correlated and not small), the errors are
       systematic and ``target_h_std_m`` is likely too small.

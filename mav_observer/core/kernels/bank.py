@@ -1,0 +1,741 @@
+"""The default estimator's filter bank, one run, compiled (numba): the only implementation.
+
+A run is a few Kalman filters on ``s = [x, a]`` (2n): the range hypotheses (``hypotheses`` at
+the start, one once they have been pruned and merged), the Riccati observer that supervises
+them and, while the bias's random walk is learnt, two probes. The maths is in
+``docs/estimator.md``; this module is the code of it, called once per velocity interval
+(:func:`predict`) and once per bearing (:func:`update`). The Monte Carlo harness runs the
+same functions over its runs (:mod:`mav_observer.core.montecarlo`).
+
+State of one run, in arrays the caller owns (:mod:`mav_observer.core.layout` makes them):
+
+* ``fs`` (rows, 2n): the filters' states; rows ``0 .. F-1`` the hypotheses still alive (in
+  their order), row ``H`` (:func:`pilot`) the Riccati observer, ``H + 1`` and ``H + 2`` the
+  walk's probes (one level down, one up); ``fp`` (rows, 2n, 2n) their covariances, ``logw``
+  (H,) the hypotheses' log weights;
+* ``bs``: the run's scalars (``B_*`` below); ``bp``: the settings (``P_*`` below);
+* ``wk``: scratch (``mav_observer.core.state.bank_scratch_size`` floats).
+
+Units: m, m/s, s; the bearing noise in rad. No I/O, no clock.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from mav_observer.core.kernels.algebra import mahalanobis2, solve, spd_inverse, tangent_basis
+from mav_observer.core.kernels.layout import (
+    B_AGE_S,
+    B_BEARINGS,
+    B_COUNT,
+    B_F,
+    B_INLIER_AVG,
+    B_NIS_AVG,
+    B_NOISE_ALPHA,
+    B_NOISE_BETA,
+    B_OUTLIERS,
+    B_R0,
+    B_RESEEDS,
+    B_WALK_LL_HI,
+    B_WALK_LL_LO,
+    B_WALK_ON,
+    B_WALK_Q,
+    P_BIAS_STD,
+    P_HYPOTHESES,
+    P_LEARN_NOISE,
+    P_LEARN_WALK,
+    P_MERGE_MAHA,
+    P_NIS_GATE,
+    P_NIS_WINDOW_S,
+    P_NOISE_MAX_RAD,
+    P_NOISE_MEMORY_S,
+    P_NOISE_MIN_RAD,
+    P_NOISE_PRIOR_DOF,
+    P_OUTLIER_NIS,
+    P_PRUNE,
+    P_PRUNE_EARLY,
+    P_PRUNE_EARLY_S,
+    P_Q_A,
+    P_RANGE_REL_STD,
+    P_SIGMA_RAD,
+    P_SPAN,
+    P_WALK_DOWN_NATS,
+    P_WALK_FACTOR,
+    P_WALK_JUMP,
+    P_WALK_LEAVE_NATS,
+    P_WALK_MAX,
+    P_WALK_MEMORY_S,
+    P_WALK_MIN,
+    P_WALK_UP_NATS,
+    P_WALK_WARMUP_S,
+)
+
+#: A bearing's noise statistic counts at most this many times its expected value
+#: (``(n - 1)`` times the variance in use).
+NOISE_CLIP = 4.0
+#: Below this share of bearings within the robust threshold the noise in use is taken to
+#: be too small and every bearing counts in learning it (``docs/estimator.md``).
+INLIER_SHARE_MIN = 0.5
+#: The most one bearing weighs in the innovations' running mean (a share of its window):
+#: a gap in the bearings is no evidence, so the first bearing after one cannot alone
+#: re-seed a consistent bank.
+NIS_MAX_WEIGHT = 0.1
+
+# scratch offsets of update_filter's results
+_R_NIS, _R_LOGDET, _R_WEIGHT, _R_STAT = 0, 1, 2, 3
+
+
+@njit(inline="always", error_model="numpy")
+def pilot(bp) -> int:
+    """The row of the Riccati observer (after the hypotheses' rows)."""
+    return int(bp[P_HYPOTHESES])
+
+
+@njit(inline="always", error_model="numpy")
+def noise_var(bs, bp) -> float:
+    """The bearing noise variance in use (rad^2): learnt or told."""
+    if bp[P_LEARN_NOISE] == 0.0:
+        return bp[P_SIGMA_RAD] ** 2
+    v = bs[B_NOISE_BETA] / bs[B_NOISE_ALPHA]
+    return min(max(v, bp[P_NOISE_MIN_RAD] ** 2), bp[P_NOISE_MAX_RAD] ** 2)
+
+
+@njit(inline="always", error_model="numpy")
+def bias_walk(bs, bp) -> float:
+    """The bias's random-walk intensity in use (m^2/s^3)."""
+    return bs[B_WALK_Q] if bp[P_LEARN_WALK] != 0.0 else bp[P_Q_A]
+
+
+@njit(inline="always", error_model="numpy")
+def _mirror(p) -> None:
+    d = p.shape[0]
+    for i in range(d):
+        for j in range(i + 1, d):
+            p[j, i] = p[i, j]
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def initial_covariance(y, range0, range_std, bias_std, sigma, p) -> None:
+    """``p`` (2n, 2n) of the state ``x = range0 y``, ``a = 0``: ``range_std`` along ``y``,
+    ``range0 * sigma`` across it, ``bias_std`` on each component of ``a``."""
+    n = y.shape[0]
+    rs2 = range_std * range_std
+    cross = (range0 * sigma) ** 2
+    p[:, :] = 0.0
+    for i in range(n):
+        for j in range(n):
+            yy = y[i] * y[j]
+            p[i, j] = rs2 * yy + cross * ((1.0 if i == j else 0.0) - yy)
+        p[n + i, n + i] = bias_std * bias_std
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def predict_filter(s, p, dx, h, q_x, q_a) -> None:
+    """One filter over ``h`` s: ``x += dx + h a`` (``dx`` the integral of ``v``, m), ``a``
+    unchanged, ``P = F P F^T + Q`` with ``F = [[I, h I], [0, I]]`` and per axis
+    ``Q = [[q_x h + q_a h^3/3, q_a h^2/2], [q_a h^2/2, q_a h]]``. In place."""
+    n = dx.shape[0]
+    hh = h * h
+    for i in range(n):
+        s[i] += dx[i] + h * s[n + i]
+    q0 = q_x * h + q_a * h * hh / 3.0
+    q1 = q_a * hh / 2.0
+    q2 = q_a * h
+    # the x-x block reads the old x-a and a-a blocks: it goes first, then x-a
+    for i in range(n):
+        for j in range(i, n):
+            v = p[i, j] + h * (p[i, n + j] + p[j, n + i]) + hh * p[n + i, n + j]
+            p[i, j] = v + (q0 if i == j else 0.0)
+    for i in range(n):
+        for j in range(n):
+            p[i, n + j] = p[i, n + j] + h * p[n + i, n + j] + (q1 if i == j else 0.0)
+    for i in range(n):
+        p[n + i, n + i] += q2
+    _mirror(p)
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
+    """One bearing ``y`` (unit, n) applied to one filter, in place; ``res`` receives
+    ``(nis, log det S, weight, noise_stat)``.
+
+    ``r_w`` 0: the extended Kalman filter's form (``d = x/|x|``, ``H = E^T/|x|``, ``z =
+    E^T y``); ``r_w > 0``: the Riccati observer's (``d = y``, ``H = E^T / r_w``, ``z = -H
+    x``, the weight range ``r_w``). A
+    bearing whose NIS exceeds ``outlier_nis`` is applied with its variance ``sig2`` scaled
+    by ``(nis / outlier_nis)^2`` (``weight`` its inverse). ``noise_stat`` is the
+    covariance-matching statistic ``w (e^T e + tr(H P+ H^T))`` of the noise variance."""
+    n = y.shape[0]
+    d2 = 2 * n
+    m = n - 1
+    o = 0
+    dvec = wk[o : o + n]
+    o += n
+    e = wk[o : o + n * m].reshape((n, m))
+    o += n * m
+    hx = wk[o : o + m * n].reshape((m, n))
+    o += m * n
+    pht = wk[o : o + d2 * m].reshape((d2, m))
+    o += d2 * m
+    sm = wk[o : o + m * m].reshape((m, m))
+    o += m * m
+    sinv = wk[o : o + m * m].reshape((m, m))
+    o += m * m
+    low = wk[o : o + m * m].reshape((m, m))
+    o += m * m
+    z = wk[o : o + m]
+    o += m
+    siz = wk[o : o + m]
+    o += m
+    k = wk[o : o + d2 * m].reshape((d2, m))
+    r = 0.0
+    for i in range(n):
+        r += s[i] * s[i]
+    r = math.sqrt(r)
+    trk = r_w <= 0.0 and r > 1e-9
+    if trk:
+        for i in range(n):
+            dvec[i] = s[i] / r
+        rw = r
+    else:
+        for i in range(n):
+            dvec[i] = y[i]
+        rw = r_w if r_w > 0.0 else 1.0
+    tangent_basis(dvec, e)
+    for c in range(m):
+        for i in range(n):
+            hx[c, i] = e[i, c] / rw
+    for c in range(m):
+        acc = 0.0
+        if trk:
+            for i in range(n):
+                acc += e[i, c] * y[i]
+        else:
+            for i in range(n):
+                acc -= hx[c, i] * s[i]
+        z[c] = acc
+    # P H^T (the rows of P's position columns), H P H^T
+    for r_ in range(d2):
+        for c in range(m):
+            acc = 0.0
+            for i in range(n):
+                acc += p[r_, i] * hx[c, i]
+            pht[r_, c] = acc
+    for a in range(m):
+        for b in range(m):
+            acc = 0.0
+            for i in range(n):
+                acc += hx[a, i] * pht[i, b]
+            sm[a, b] = acc + (sig2 if a == b else 0.0)
+    logdet = spd_inverse(sm, sinv, low)
+    nis = 0.0
+    for a in range(m):
+        acc = 0.0
+        for b in range(m):
+            acc += sinv[a, b] * z[b]
+        siz[a] = acc
+        nis += z[a] * acc
+    weight = 1.0
+    r_eff = sig2
+    if nis > outlier_nis:
+        weight = (outlier_nis / nis) ** 2
+        r_eff = sig2 / weight
+        for a in range(m):
+            sm[a, a] += r_eff - sig2
+        spd_inverse(sm, sinv, low)
+        for a in range(m):
+            acc = 0.0
+            for b in range(m):
+                acc += sinv[a, b] * z[b]
+            siz[a] = acc
+    # K = P H^T S^-1; s += K z; P -= K (P H^T)^T, the upper triangle mirrored
+    for r_ in range(d2):
+        for c in range(m):
+            acc = 0.0
+            for b in range(m):
+                acc += pht[r_, b] * sinv[b, c]
+            k[r_, c] = acc
+    for r_ in range(d2):
+        acc = 0.0
+        for c in range(m):
+            acc += k[r_, c] * z[c]
+        s[r_] += acc
+    for i in range(d2):
+        for j in range(i, d2):
+            acc = 0.0
+            for c in range(m):
+                acc += k[i, c] * pht[j, c]
+            p[i, j] -= acc
+    _mirror(p)
+    tr = 0.0
+    sq = 0.0
+    for a in range(m):
+        tr += sinv[a, a]
+        sq += siz[a] * siz[a]
+    stat = r_eff * (m - r_eff * (tr - sq))
+    res[_R_NIS] = nis
+    res[_R_LOGDET] = logdet
+    res[_R_WEIGHT] = weight
+    res[_R_STAT] = weight * stat
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def _seed(fs, fp, logw, y, centre, a0, sigma, bp) -> None:
+    """The hypotheses around ``centre`` (m) along ``y`` with bias ``a0`` and bearing noise
+    ``sigma`` (rad): rows ``0 .. H-1``, prior weights proportional to ``1/sqrt(range)``."""
+    n = y.shape[0]
+    hyp = int(bp[P_HYPOTHESES])
+    span = bp[P_SPAN]
+    top = -math.inf
+    for k in range(hyp):
+        u = -1.0 + 2.0 * k / (hyp - 1) if hyp > 1 else 0.0
+        rk = centre * span**u
+        for i in range(n):
+            fs[k, i] = rk * y[i]
+            fs[k, n + i] = a0[i]
+        initial_covariance(y, rk, bp[P_RANGE_REL_STD] * rk, bp[P_BIAS_STD], sigma, fp[k])
+        logw[k] = -0.5 * math.log(rk)
+        top = max(top, logw[k])
+    total = 0.0
+    for k in range(hyp):
+        total += math.exp(logw[k] - top)
+    lse = top + math.log(total)
+    for k in range(hyp):
+        logw[k] -= lse
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def start(fs, fp, logw, bs, bp, y, r0) -> None:
+    """A run started at its first bearing ``y`` with the range guess ``r0`` (m): the bank
+    spans ``r0 / span`` to ``r0 * span``; the Riccati observer starts at ``r0 y`` with a
+    range standard deviation of ``3 r0``."""
+    n = y.shape[0]
+    bs[:] = 0.0
+    fs[:, :] = 0.0
+    fp[:, :, :] = 0.0
+    sigma = bp[P_SIGMA_RAD]
+    zero = fs[pilot(bp), n:]  # (zeros: the pilot's bias, filled below)
+    _seed(fs, fp, logw, y, r0, zero, sigma, bp)
+    h = pilot(bp)
+    for i in range(n):
+        fs[h, i] = r0 * y[i]
+        fs[h, n + i] = 0.0
+    initial_covariance(y, r0, 3.0 * r0, bp[P_BIAS_STD], sigma, fp[h])
+    bs[B_F] = bp[P_HYPOTHESES]
+    bs[B_R0] = r0
+    bs[B_NIS_AVG] = n - 1.0
+    alpha0 = 0.5 * bp[P_NOISE_PRIOR_DOF]
+    bs[B_NOISE_ALPHA] = alpha0
+    bs[B_NOISE_BETA] = alpha0 * sigma * sigma
+    bs[B_INLIER_AVG] = 1.0
+
+
+@njit(inline="always", error_model="numpy")
+def walk_levels(q, bp) -> tuple[float, float]:
+    """The probes' ``q_a`` around ``q``: one level down (0 below ``walk_min``; at 0, the
+    jump ``walk_jump``) and one up (at least ``walk_min``, at most ``walk_max``)."""
+    lo = q / bp[P_WALK_FACTOR]
+    hi = min(max(q * bp[P_WALK_FACTOR], bp[P_WALK_MIN]), bp[P_WALK_MAX])
+    if q <= 0.0:
+        return bp[P_WALK_JUMP], hi
+    return (0.0 if lo < bp[P_WALK_MIN] else lo), hi
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def predict(fs, fp, bs, bp, dx, h, q_x) -> None:
+    """Every filter of the run over ``h`` s with the integral ``dx`` of ``v`` (m) and the
+    process noise ``q_x`` (m^2/s) on ``x``; the probes only while they run."""
+    probes = bp[P_LEARN_WALK] != 0.0 and bs[B_WALK_ON] > 0.0
+    q = bs[B_WALK_Q] if probes else bp[P_Q_A]
+    f = int(bs[B_F])
+    for i in range(f):
+        predict_filter(fs[i], fp[i], dx, h, q_x, q)
+    hp = pilot(bp)
+    predict_filter(fs[hp], fp[hp], dx, h, q_x, q)
+    if probes:
+        lo, hi = walk_levels(q, bp)
+        predict_filter(fs[hp + 1], fp[hp + 1], dx, h, q_x, lo)
+        predict_filter(fs[hp + 2], fp[hp + 2], dx, h, q_x, hi)
+    bs[B_AGE_S] += h
+
+
+@njit(inline="always", error_model="numpy")
+def _copy_filter(fs, fp, src, dst) -> None:
+    fs[dst, :] = fs[src, :]
+    fp[dst, :, :] = fp[src, :, :]
+
+
+@njit(inline="always", error_model="numpy")
+def _start_probes(fs, fp, bs, bp) -> None:
+    hp = pilot(bp)
+    _copy_filter(fs, fp, 0, hp + 1)
+    _copy_filter(fs, fp, 0, hp + 2)
+    bs[B_WALK_LL_LO] = 0.0
+    bs[B_WALK_LL_HI] = 0.0
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def _walk_step(fs, fp, bs, bp, nis, logdet, nis_lo, logdet_lo, nis_hi, logdet_hi, h,
+               walk_hold, walk_hold_nats) -> None:  # fmt: skip
+    """Learn the bias's random walk by likelihood (``docs/estimator.md``): the filter
+    against its two probes on the same bearings; a probe leading by enough nats becomes the
+    filter and its level the one in use."""
+    g = bp[P_OUTLIER_NIS]
+    if nis > g or nis_lo > g or nis_hi > g:  # a gross error: neutral
+        diff_lo = diff_hi = 0.0
+    else:
+        ll0 = -0.5 * (nis + logdet)
+        diff_lo = -0.5 * (nis_lo + logdet_lo) - ll0
+        diff_hi = -0.5 * (nis_hi + logdet_hi) - ll0
+    rho = math.exp(-max(h, 0.0) / bp[P_WALK_MEMORY_S])
+    lead_lo = rho * bs[B_WALK_LL_LO] + diff_lo
+    lead_hi = rho * bs[B_WALK_LL_HI] + diff_hi
+    q = bs[B_WALK_Q]
+    bar = bp[P_WALK_UP_NATS] if q > 0.0 else bp[P_WALK_LEAVE_NATS]
+    if walk_hold and q == 0.0:  # leaving 0 is held
+        bar = max(bar, walk_hold_nats)
+    if q > 0.0:
+        lo_bar = bp[P_WALK_DOWN_NATS]
+    elif bp[P_WALK_JUMP] > 0.0 and not walk_hold:  # at 0 the lower probe is the jump
+        lo_bar = bp[P_WALK_LEAVE_NATS]
+    else:
+        lo_bar = math.inf
+    if (lead_hi > bar and q < bp[P_WALK_MAX]
+            and not (q <= 0.0 and lead_lo > max(lo_bar, lead_hi))):  # fmt: skip
+        k = 1
+    elif lead_lo > lo_bar:
+        k = 0
+    else:
+        bs[B_WALK_LL_LO] = lead_lo
+        bs[B_WALK_LL_HI] = lead_hi
+        return
+    lo, hi = walk_levels(q, bp)
+    bs[B_WALK_Q] = hi if k == 1 else lo
+    _copy_filter(fs, fp, pilot(bp) + 1 + k, 0)
+    _start_probes(fs, fp, bs, bp)
+
+
+@njit(inline="always", error_model="numpy")
+def _logsumexp(v, count) -> float:
+    top = -math.inf
+    for i in range(count):
+        top = max(top, v[i])
+    s = 0.0
+    for i in range(count):
+        s += math.exp(v[i] - top)
+    return top + math.log(s)
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def _select(fs, fp, logw, bs, keep) -> None:
+    """Keep the hypotheses whose ``keep`` is nonzero (in order), weights renormalised."""
+    f = int(bs[B_F])
+    j = 0
+    for i in range(f):
+        if keep[i] != 0.0:
+            if j != i:
+                _copy_filter(fs, fp, i, j)
+                logw[j] = logw[i]
+            j += 1
+    bs[B_F] = j
+    lse = _logsumexp(logw, j)
+    for i in range(j):
+        logw[i] -= lse
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def _merge(fs, fp, logw, bs, bp, wk) -> None:
+    """Merge every hypothesis within ``merge_maha`` (squared Mahalanobis distance under the
+    sum of the two covariances) of the heaviest into it, moments matched."""
+    f = int(bs[B_F])
+    d2 = fs.shape[1]
+    kmax = 0
+    for i in range(1, f):
+        if logw[i] > logw[kmax]:
+            kmax = i
+    o = 0
+    diff = wk[o : o + d2]
+    o += d2
+    acov = wk[o : o + d2 * d2].reshape((d2, d2))
+    o += d2 * d2
+    low = wk[o : o + d2 * d2].reshape((d2, d2))
+    o += d2 * d2
+    zv = wk[o : o + d2]
+    o += d2
+    gauss = wk[o : o + d2 * (d2 + 1)].reshape((d2, d2 + 1))
+    o += d2 * (d2 + 1)
+    close = wk[o : o + f]
+    o += f
+    mean = wk[o : o + d2]
+    o += d2
+    acc = wk[o : o + d2 * d2].reshape((d2, d2))
+    o += d2 * d2
+    bar = bp[P_MERGE_MAHA]
+    any_close = False
+    for i in range(f):
+        close[i] = 0.0
+        if i == kmax:
+            continue
+        for j in range(d2):
+            diff[j] = fs[i, j] - fs[kmax, j]
+        for a in range(d2):
+            for b in range(d2):
+                acov[a, b] = fp[i, a, b] + fp[kmax, a, b]
+        m2 = mahalanobis2(diff, acov, low, zv)
+        if math.isnan(m2):  # not numerically positive definite: a pivoting solve decides
+            for j in range(d2):
+                zv[j] = diff[j]
+            if solve(acov, zv, gauss):
+                m2 = 0.0
+                for j in range(d2):
+                    m2 += diff[j] * zv[j]
+            else:
+                m2 = math.inf
+        if m2 < bar:
+            close[i] = 1.0
+            any_close = True
+    if not any_close:
+        return
+    total = 0.0
+    for i in range(f):
+        if i == kmax or close[i] != 0.0:
+            total += math.exp(logw[i])
+    mean[:] = 0.0
+    for i in range(f):
+        if i == kmax or close[i] != 0.0:
+            w = math.exp(logw[i])
+            for j in range(d2):
+                mean[j] += w * fs[i, j]
+    for j in range(d2):
+        mean[j] /= total
+    acc[:, :] = 0.0
+    for i in range(f):
+        if i == kmax or close[i] != 0.0:
+            w = math.exp(logw[i])
+            for j in range(d2):
+                diff[j] = fs[i, j] - mean[j]
+            for a in range(d2):
+                for b in range(a, d2):
+                    acc[a, b] += w * fp[i, a, b] + w * diff[a] * diff[b]
+    for a in range(d2):
+        fs[kmax, a] = mean[a]
+        for b in range(a, d2):
+            fp[kmax, a, b] = acc[a, b] / total
+    _mirror(fp[kmax])
+    logw[kmax] = math.log(total)
+    for i in range(f):
+        close[i] = 0.0 if close[i] != 0.0 else 1.0  # keep the others
+    _select(fs, fp, logw, bs, close)
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def reseed(fs, fp, logw, bs, bp, y) -> None:
+    """Replace the hypotheses by a new bank around the Riccati observer's range (its
+    estimate converges from anywhere) at the bearing ``y``."""
+    n = y.shape[0]
+    hp = pilot(bp)
+    rp = 0.0
+    for i in range(n):
+        rp += fs[hp, i] * fs[hp, i]
+    rp = math.sqrt(rp)
+    centre = rp if rp > 0.0 else bs[B_R0]
+    sigma = math.sqrt(noise_var(bs, bp))
+    _seed(fs, fp, logw, y, centre, fs[hp, n:], sigma, bp)
+    bs[B_F] = bp[P_HYPOTHESES]
+    bs[B_NIS_AVG] = n - 1.0
+    bs[B_AGE_S] = 0.0
+    bs[B_RESEEDS] += 1.0
+    if bp[P_LEARN_NOISE] != 0.0:
+        # what was learnt while the filters disagreed with the bearings is suspect: the
+        # level is kept, weighing as the prior
+        alpha0 = 0.5 * bp[P_NOISE_PRIOR_DOF]
+        bs[B_NOISE_BETA] = bs[B_NOISE_BETA] / bs[B_NOISE_ALPHA] * alpha0
+        bs[B_NOISE_ALPHA] = alpha0
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
+    """The bearing ``y`` (unit), ``h`` s after the previous one, applied to the run: every
+    hypothesis in tracking form, weights by likelihood, the Riccati observer in acquisition
+    form, the probes; then the walk, the noise learnt, prune, merge, and a re-seeding when
+    the innovations stay inconsistent. ``walk_hold`` / ``walk_hold_nats``: the walk held
+    while the bearings' latency is being learnt (``inf``: no probe runs)."""
+    n = y.shape[0]
+    m = n - 1
+    g = bp[P_OUTLIER_NIS]
+    var = noise_var(bs, bp)
+    f = int(bs[B_F])
+    hyp = int(bp[P_HYPOTHESES])
+    hp = hyp
+    res = wk[0 : 4 * (hyp + 3)].reshape((hyp + 3, 4))
+    kw = wk[4 * (hyp + 3) :]
+    for i in range(f):
+        update_filter(fs[i], fp[i], y, var, 0.0, g, kw, res[i])
+    update_filter(fs[hp], fp[hp], y, var, bs[B_R0], g, kw, res[hp])
+    probes = bp[P_LEARN_WALK] != 0.0 and bs[B_WALK_ON] > 0.0
+    robust = res[hp, _R_WEIGHT] < 1.0
+    if probes:
+        update_filter(fs[hp + 1], fp[hp + 1], y, var, 0.0, g, kw, res[hp + 1])
+        update_filter(fs[hp + 2], fp[hp + 2], y, var, 0.0, g, kw, res[hp + 2])
+        robust = robust or res[hp + 1, _R_WEIGHT] < 1.0 or res[hp + 2, _R_WEIGHT] < 1.0
+    if bp[P_LEARN_WALK] != 0.0:
+        off = walk_hold and not math.isfinite(walk_hold_nats)
+        if off or f != 1 or not bs[B_AGE_S] > bp[P_WALK_WARMUP_S]:
+            bs[B_WALK_ON] = 0.0
+        elif probes:
+            _walk_step(fs, fp, bs, bp, res[0, _R_NIS], res[0, _R_LOGDET],
+                       res[hp + 1, _R_NIS], res[hp + 1, _R_LOGDET],
+                       res[hp + 2, _R_NIS], res[hp + 2, _R_LOGDET], h,
+                       walk_hold, walk_hold_nats)  # fmt: skip
+        else:  # the probes start as copies of the filter
+            _start_probes(fs, fp, bs, bp)
+            bs[B_WALK_ON] = 1.0
+    w_prior = kw[0:f]
+    stat = 0.0
+    if f == 1:  # the converged run: its one filter weighs 1
+        mix_nis = min(res[0, _R_NIS], g)
+        w_run = res[0, _R_WEIGHT]
+        inlier_share = 1.0 if res[0, _R_WEIGHT] >= 1.0 else 0.0
+    else:
+        for i in range(f):
+            w_prior[i] = math.exp(logw[i])
+            robust = robust or res[i, _R_WEIGHT] < 1.0
+        floor = g + m * math.log(var)
+        for i in range(f):
+            loss = res[i, _R_NIS] + res[i, _R_LOGDET]
+            if robust:
+                loss = min(loss, floor)
+            logw[i] -= 0.5 * loss
+        lse = _logsumexp(logw, f)
+        for i in range(f):
+            logw[i] -= lse
+        mix_nis = 0.0
+        w_run = 0.0
+        inlier_share = 0.0
+        for i in range(f):
+            mix_nis += w_prior[i] * min(res[i, _R_NIS], g)
+            w_run += w_prior[i] * res[i, _R_WEIGHT]
+            if res[i, _R_WEIGHT] >= 1.0:
+                inlier_share += w_prior[i]
+    bs[B_NIS_AVG] += min(NIS_MAX_WEIGHT, h / bp[P_NIS_WINDOW_S]) * (mix_nis - bs[B_NIS_AVG])
+    bs[B_BEARINGS] += 1.0
+    if w_run < 0.5:
+        bs[B_OUTLIERS] += 1.0
+    if bp[P_LEARN_NOISE] != 0.0:
+        beta_ = min(1.0, max(h, 0.0) / bp[P_NIS_WINDOW_S])
+        bs[B_INLIER_AVG] += beta_ * (inlier_share - bs[B_INLIER_AVG])
+        all_in = bs[B_INLIER_AVG] >= INLIER_SHARE_MIN
+        if f == 1:
+            stat = res[0, _R_STAT]
+            if res[0, _R_WEIGHT] < 1.0 and all_in:
+                stat = m * var
+        else:
+            for i in range(f):
+                use = res[i, _R_WEIGHT] >= 1.0 or not all_in
+                stat += w_prior[i] * (res[i, _R_STAT] if use else m * var)
+        stat = min(stat, NOISE_CLIP * m * var)
+        rho = math.exp(-max(h, 0.0) / bp[P_NOISE_MEMORY_S])
+        bs[B_NOISE_ALPHA] = rho * bs[B_NOISE_ALPHA] + 0.5 * m
+        bs[B_NOISE_BETA] = rho * bs[B_NOISE_BETA] + 0.5 * stat
+    if f > 1:
+        early = bs[B_AGE_S] < bp[P_PRUNE_EARLY_S] and bs[B_RESEEDS] == 0.0
+        floor_w = bp[P_PRUNE_EARLY] if early else bp[P_PRUNE]
+        keep = kw[0:f]
+        pruned = False
+        for i in range(f):
+            keep[i] = 1.0 if math.exp(logw[i]) >= floor_w else 0.0
+            pruned = pruned or keep[i] == 0.0
+        if pruned:
+            _select(fs, fp, logw, bs, keep)
+        if bs[B_F] > 1:
+            _merge(fs, fp, logw, bs, bp, kw)
+    if bs[B_NIS_AVG] > bp[P_NIS_GATE] * m and bs[B_AGE_S] > 2.0 * bp[P_NIS_WINDOW_S]:
+        reseed(fs, fp, logw, bs, bp, y)
+
+
+@njit(inline="always", error_model="numpy")
+def mean_state(fs, logw, bs, out) -> None:
+    """The run's ``[x, a]`` into ``out`` (2n): the mixture's mean."""
+    f = int(bs[B_F])
+    if f == 1:
+        out[:] = fs[0, :]
+        return
+    out[:] = 0.0
+    for k in range(f):
+        w = math.exp(logw[k])
+        for j in range(out.shape[0]):
+            out[j] += w * fs[k, j]
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def estimate(fs, fp, logw, bs, bp, s_out, p_out, wk) -> None:
+    """The run's estimate: ``s_out`` (2n) the mixture's mean, ``p_out`` (2n, 2n) its
+    covariance, the hypotheses' spread included; with one filter whose probes run, its mean
+    and the covariance over the walk's three levels (the filter and its probes weighted by
+    their likelihood over the walk's memory, each with its spread about the filter's mean)."""
+    f = int(bs[B_F])
+    d2 = fs.shape[1]
+    diff = wk[0:d2]
+    mean_state(fs, logw, bs, s_out)
+    p_out[:, :] = 0.0
+    if f == 1 and bs[B_WALK_ON] > 0.0:
+        hp = pilot(bp)
+        lo, hi = bs[B_WALK_LL_LO], bs[B_WALK_LL_HI]
+        top = max(0.0, lo, hi)
+        w0, w1, w2 = math.exp(-top), math.exp(lo - top), math.exp(hi - top)
+        t = 1.0 / (w0 + w1 + w2)
+        _spread_add(p_out, fp[0], w0 * t, fs[0], s_out, diff)
+        _spread_add(p_out, fp[hp + 1], w1 * t, fs[hp + 1], s_out, diff)
+        _spread_add(p_out, fp[hp + 2], w2 * t, fs[hp + 2], s_out, diff)
+    elif f == 1:
+        p_out[:, :] = fp[0, :, :]
+        return
+    else:
+        for k in range(f):
+            _spread_add(p_out, fp[k], math.exp(logw[k]), fs[k], s_out, diff)
+    _mirror(p_out)
+
+
+@njit(inline="always", error_model="numpy")
+def _spread_add(acc, p, w, s, mean, diff) -> None:
+    """``acc += w (P + d d^T)``, ``d = s - mean``, on the upper triangle."""
+    d2 = s.shape[0]
+    for j in range(d2):
+        diff[j] = s[j] - mean[j]
+    for a in range(d2):
+        for b in range(a, d2):
+            acc[a, b] += w * p[a, b] + w * diff[a] * diff[b]
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def position_update(x, pxx, y, sig2, outlier_nis, wk) -> None:
+    """A bearing ``y`` applied to a predicted position ``x`` (n) of covariance ``pxx``
+    (n, n) alone, tracking form, in place: for an estimate published beyond the committed
+    state (the bearing is applied to the state once the velocity around it is known)."""
+    n = x.shape[0]
+    d2 = 2 * n
+    s = wk[0:d2]
+    p = wk[d2 : d2 + d2 * d2].reshape((d2, d2))
+    res = wk[d2 + d2 * d2 : d2 + d2 * d2 + 4]
+    kw = wk[d2 + d2 * d2 + 4 :]
+    s[:] = 0.0
+    p[:, :] = 0.0
+    s[:n] = x
+    p[:n, :n] = pxx
+    update_filter(s, p, y, sig2, 0.0, outlier_nis, kw, res)
+    x[:] = s[:n]
+    pxx[:, :] = p[:n, :n]
+
+
+def new_arrays(n: int, hypotheses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Zeroed ``(fs, fp, logw, bs)`` of one run."""
+    rows = hypotheses + 3
+    return (
+        np.zeros((rows, 2 * n)),
+        np.zeros((rows, 2 * n, 2 * n)),
+        np.zeros(hypotheses),
+        np.zeros(B_COUNT),
+    )
