@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from mav_observer import __version__, statefile
+from mav_observer.core import compiled
 from mav_observer.core.samples import WARN_LAG1, Correlation
 from mav_observer.errors import MavObserverError
 from mav_observer.mavlink import signing
@@ -166,6 +167,8 @@ class Service:
 
     def run(self, *, duration_s: float | None = None) -> None:
         """Run until :meth:`stop` (or for ``duration_s``), then shut down cleanly."""
+        # the estimator loaded (compiled on a machine's first run) before any sample waits
+        compiled.kernels()
         self.restore_state()
         end = None if duration_s is None else self.monotonic() + duration_s
         log.info(
