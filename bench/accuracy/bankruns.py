@@ -15,10 +15,13 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from mav_observer.core.compiled import clear_stale_cache
 from mav_observer.core.config import BankParams
 from mav_observer.core.kernels import bank
 from mav_observer.core.kernels.layout import B_COUNT
 from mav_observer.core.state import bank_scratch_size
+
+clear_stale_cache(__file__)
 
 
 class BankRuns:

@@ -131,11 +131,18 @@ def run_all(tasks: list[Task], jobs: int = 1, progress: bool = True) -> list[Res
         for i in order:
             note(i, run_task(tasks[i]))
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        # one compiled thread per process: the processes share the cores out already
+        with ProcessPoolExecutor(max_workers=jobs, initializer=_one_thread) as pool:
             futs = {pool.submit(run_task, tasks[i]): i for i in order}
             for fut in as_completed(futs):
                 note(futs[fut], fut.result())
     return [r for r in results if r is not None]
+
+
+def _one_thread() -> None:
+    import numba
+
+    numba.set_num_threads(1)
 
 
 def default_jobs() -> int:

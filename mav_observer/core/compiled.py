@@ -7,7 +7,7 @@ second. The first run prints one line to stderr saying so and how long it took.
 
 numba checks a cached function against its own file only; the kernels share the layout's
 constants, so a stamp of all the kernels' sources clears the cache when any changed (a
-developer's edit; an installed package never changes).
+developer's edit; an installed package never changes): :func:`clear_stale_cache`.
 """
 
 from __future__ import annotations
@@ -28,17 +28,28 @@ _loaded: dict[str, ModuleType] = {}
 _lock = threading.Lock()
 
 
-def _stamp_cache() -> None:
-    """Clear numba's cached kernels when any kernel source changed since they were made."""
+def kernels_digest() -> str:
+    """A digest of every kernel module's source."""
     sources = sorted(_KERNELS_DIR.glob("*.py"))
-    digest = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
-    cache = _KERNELS_DIR / "__pycache__"
-    stamp = cache / "kernels.stamp"
+    return hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()
+
+
+def clear_stale_cache(module_file: str | Path, *, whole_folder: bool = False) -> None:
+    """Clear numba's cached machine code of the module ``module_file`` (or of every module
+    of its folder) when the kernels' sources changed since it was cached: numba checks a
+    cached function against its own file only, and code that calls the kernels compiles
+    them in. For the kernels themselves and for compiled code elsewhere that calls them
+    (the Monte Carlo harness, the tests' shims)."""
+    path = Path(module_file).resolve()
+    cache = path.parent / "__pycache__"
+    pattern = "*" if whole_folder else f"{path.stem}.*"
+    stamp = cache / f"{'kernels' if whole_folder else path.stem}.stamp"
+    digest = kernels_digest()
     try:
         if stamp.is_file() and stamp.read_text() == digest:
             return
         cache.mkdir(exist_ok=True)
-        for f in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+        for f in [*cache.glob(f"{pattern}.nbi"), *cache.glob(f"{pattern}.nbc")]:
             f.unlink()
         stamp.write_text(digest)
     except OSError:
@@ -63,7 +74,7 @@ def kernels() -> ModuleType:
         return module
     with _lock:
         if "kernels" not in _loaded:
-            _stamp_cache()
+            clear_stale_cache(_KERNELS_DIR / "observer.py", whole_folder=True)
             t0 = time.perf_counter()
             noticed = threading.Event()
             printing = threading.Lock()
