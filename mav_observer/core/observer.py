@@ -64,6 +64,13 @@ __all__ = [
 STATE_SCHEMA = state_mod.STATE_SCHEMA
 #: The statuses by their code in the kernels (``layout.STALE`` ...).
 _STATUS = (Status.STALE, Status.NOT_OBSERVABLE, Status.CONVERGING, Status.CONVERGED)
+#: The scalar columns of an estimate row, in the order :meth:`BiasObserver._row_estimate`
+#: unpacks them; the vectors follow.
+_ROW = (L.E_T, L.E_RANGE, L.E_EXCITATION, L.E_COND, L.E_STATUS, L.E_CORRECTED,
+        L.E_BEARING_AGE, L.E_VELOCITY_AGE, L.E_CORRECTION_REL, L.E_RANGE_STD, L.E_NIS,
+        L.E_HAS_COV)  # fmt: skip
+_ROW_SCALARS = len(_ROW)
+assert tuple(range(_ROW_SCALARS)) == _ROW and _ROW_SCALARS == L.E_FIXED
 
 
 class BiasObserver:
@@ -88,6 +95,9 @@ class BiasObserver:
         self._s_out = np.zeros(n2)
         self._p_out = np.zeros((n2, n2))
         self._none = np.zeros(self._n)  # (an input an operation does not read)
+        self._live_row = self._st.out[-1]
+        n, x0 = self._n, L.E_FIXED
+        self._slices = tuple(slice(x0 + k * n, x0 + (k + 1) * n) for k in range(4))
         self._estimate: Estimate | None = None
         #: the committed estimates at bearing times not yet taken (``committed=True``)
         self._committed: list[Estimate] = []
@@ -328,30 +338,23 @@ class BiasObserver:
             self._committed.extend(self._row_estimate(out[i]) for i in range(k))
 
     def _row_estimate(self, row: np.ndarray) -> Estimate:
-        """An estimate from a row of ``out`` (``layout.E_*``): arrays are read-only views
-        of a private copy."""
-        n = self._n
+        """An estimate from a row of ``out`` (``layout.E_*``, in :data:`_ROW` order): its
+        arrays are read-only views of a private copy (it runs at every bearing)."""
         r = row.copy()
         r.setflags(write=False)
-        v = r.tolist()
-        x0 = L.E_FIXED
-        has_cov = v[L.E_HAS_COV] != 0.0
-        b_age, v_age, nis = v[L.E_BEARING_AGE], v[L.E_VELOCITY_AGE], v[L.E_NIS]
+        t, rng, exc, cond, status, corrected, b_age, v_age, corr, r_std, nis, has_cov = r[
+            :_ROW_SCALARS
+        ].tolist()
+        sx, sa, ssx, ssa = self._slices
         return tuple.__new__(Estimate, (
-            v[L.E_T], r[x0 : x0 + n], r[x0 + n : x0 + 2 * n], v[L.E_RANGE],
-            v[L.E_EXCITATION], v[L.E_COND], _STATUS[int(v[L.E_STATUS])],
-            v[L.E_CORRECTED] != 0.0,
-            None if isnan(b_age) else b_age,
-            None if isnan(v_age) else v_age,
-            v[L.E_CORRECTION_REL],
-            r[x0 + 2 * n : x0 + 3 * n] if has_cov else None,
-            r[x0 + 3 * n : x0 + 4 * n] if has_cov else None,
-            v[L.E_RANGE_STD] if has_cov else None,
-            None if isnan(nis) else nis,
+            t, r[sx], r[sa], rng, exc, cond, _STATUS[int(status)], corrected != 0.0,
+            None if isnan(b_age) else b_age, None if isnan(v_age) else v_age, corr,
+            r[ssx] if has_cov else None, r[ssa] if has_cov else None,
+            r_std if has_cov else None, None if isnan(nis) else nis,
         ))  # fmt: skip
 
     def _live(self) -> Estimate:
-        est = self._row_estimate(self._st.out[-1])
+        est = self._row_estimate(self._live_row)
         self._estimate = est
         return est
 

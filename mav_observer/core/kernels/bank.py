@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mav_observer.core.kernels.algebra import mahalanobis2, solve, spd_inverse, tangent_basis
+from mav_observer.core.kernels.algebra import mahalanobis2, solve, spd_inverse
 from mav_observer.core.kernels.layout import (
     B_AGE_S,
     B_BEARINGS,
@@ -157,7 +157,7 @@ def predict_filter(s, p, dx, h, q_x, q_a) -> None:
     _mirror(p)
 
 
-@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+@njit(inline="always", error_model="numpy")
 def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
     """One bearing ``y`` (unit, n) applied to one filter, in place; ``res`` receives
     ``(nis, log det S, weight, noise_stat)``.
@@ -168,29 +168,30 @@ def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
     bearing whose NIS exceeds ``outlier_nis`` is applied with its variance ``sig2`` scaled
     by ``(nis / outlier_nis)^2`` (``weight`` its inverse). ``noise_stat`` is the
     covariance-matching statistic ``w (e^T e + tr(H P+ H^T))`` of the noise variance."""
-    n = y.shape[0]
+    if y.shape[0] == 3:  # the common case compiled with its sizes known: loops unrolled
+        _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, 3)
+    else:
+        _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, y.shape[0])
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, n) -> None:
+    """:func:`update_filter` in ``n`` dimensions (the scratch ``wk`` flat)."""
     d2 = 2 * n
     m = n - 1
-    o = 0
-    dvec = wk[o : o + n]
-    o += n
-    e = wk[o : o + n * m].reshape((n, m))
-    o += n * m
-    hx = wk[o : o + m * n].reshape((m, n))
-    o += m * n
-    pht = wk[o : o + d2 * m].reshape((d2, m))
-    o += d2 * m
-    sm = wk[o : o + m * m].reshape((m, m))
-    o += m * m
-    sinv = wk[o : o + m * m].reshape((m, m))
-    o += m * m
-    low = wk[o : o + m * m].reshape((m, m))
-    o += m * m
-    z = wk[o : o + m]
-    o += m
-    siz = wk[o : o + m]
-    o += m
-    k = wk[o : o + d2 * m].reshape((d2, m))
+    # scratch: d (n), E (n, m), H (m, n), P H^T (2n, m), z (m), S^-1 z (m), K (2n, m);
+    # S, S^-1 and a factor (m, m) as views
+    o_d = 0
+    o_e = n
+    o_h = o_e + n * m
+    o_p = o_h + m * n
+    o_z = o_p + d2 * m
+    o_q = o_z + m
+    o_k = o_q + m
+    o_s = o_k + d2 * m
+    sm = wk[o_s : o_s + m * m].reshape((m, m))
+    sinv = wk[o_s + m * m : o_s + 2 * m * m].reshape((m, m))
+    low = wk[o_s + 2 * m * m : o_s + 3 * m * m].reshape((m, m))
     r = 0.0
     for i in range(n):
         r += s[i] * s[i]
@@ -198,46 +199,56 @@ def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
     trk = r_w <= 0.0 and r > 1e-9
     if trk:
         for i in range(n):
-            dvec[i] = s[i] / r
+            wk[o_d + i] = s[i] / r
         rw = r
     else:
         for i in range(n):
-            dvec[i] = y[i]
+            wk[o_d + i] = y[i]
         rw = r_w if r_w > 0.0 else 1.0
-    tangent_basis(dvec, e)
-    for c in range(m):
+    # the tangent basis E: columns 1.. of the Householder reflection mapping e_0 to -sign d
+    d0 = wk[o_d]
+    u0 = d0 + (1.0 if d0 >= 0.0 else -1.0)
+    uu = u0 * u0
+    for i in range(1, n):
+        uu += wk[o_d + i] * wk[o_d + i]
+    beta = 2.0 / uu
+    for c in range(1, n):
+        dc = wk[o_d + c]
         for i in range(n):
-            hx[c, i] = e[i, c] / rw
+            ui = u0 if i == 0 else wk[o_d + i]
+            ev = (1.0 if i == c else 0.0) - beta * ui * dc
+            wk[o_e + i * m + c - 1] = ev
+            wk[o_h + (c - 1) * n + i] = ev / rw
     for c in range(m):
         acc = 0.0
         if trk:
             for i in range(n):
-                acc += e[i, c] * y[i]
+                acc += wk[o_e + i * m + c] * y[i]
         else:
             for i in range(n):
-                acc -= hx[c, i] * s[i]
-        z[c] = acc
+                acc -= wk[o_h + c * n + i] * s[i]
+        wk[o_z + c] = acc
     # P H^T (the rows of P's position columns), H P H^T
-    for r_ in range(d2):
+    for i in range(d2):
         for c in range(m):
             acc = 0.0
-            for i in range(n):
-                acc += p[r_, i] * hx[c, i]
-            pht[r_, c] = acc
+            for k in range(n):
+                acc += p[i, k] * wk[o_h + c * n + k]
+            wk[o_p + i * m + c] = acc
     for a in range(m):
         for b in range(m):
             acc = 0.0
-            for i in range(n):
-                acc += hx[a, i] * pht[i, b]
+            for k in range(n):
+                acc += wk[o_h + a * n + k] * wk[o_p + k * m + b]
             sm[a, b] = acc + (sig2 if a == b else 0.0)
     logdet = spd_inverse(sm, sinv, low)
     nis = 0.0
     for a in range(m):
         acc = 0.0
         for b in range(m):
-            acc += sinv[a, b] * z[b]
-        siz[a] = acc
-        nis += z[a] * acc
+            acc += sinv[a, b] * wk[o_z + b]
+        wk[o_q + a] = acc
+        nis += wk[o_z + a] * acc
     weight = 1.0
     r_eff = sig2
     if nis > outlier_nis:
@@ -249,32 +260,33 @@ def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
         for a in range(m):
             acc = 0.0
             for b in range(m):
-                acc += sinv[a, b] * z[b]
-            siz[a] = acc
-    # K = P H^T S^-1; s += K z; P -= K (P H^T)^T, the upper triangle mirrored
-    for r_ in range(d2):
+                acc += sinv[a, b] * wk[o_z + b]
+            wk[o_q + a] = acc
+    # K = P H^T S^-1; s += K z; P -= K (P H^T)^T, exactly symmetric
+    for i in range(d2):
         for c in range(m):
             acc = 0.0
             for b in range(m):
-                acc += pht[r_, b] * sinv[b, c]
-            k[r_, c] = acc
-    for r_ in range(d2):
+                acc += wk[o_p + i * m + b] * sinv[b, c]
+            wk[o_k + i * m + c] = acc
+    for i in range(d2):
         acc = 0.0
         for c in range(m):
-            acc += k[r_, c] * z[c]
-        s[r_] += acc
+            acc += wk[o_k + i * m + c] * wk[o_z + c]
+        s[i] += acc
     for i in range(d2):
         for j in range(i, d2):
             acc = 0.0
             for c in range(m):
-                acc += k[i, c] * pht[j, c]
-            p[i, j] -= acc
-    _mirror(p)
+                acc += wk[o_k + i * m + c] * wk[o_p + j * m + c]
+            v = p[i, j] - acc
+            p[i, j] = v
+            p[j, i] = v
     tr = 0.0
     sq = 0.0
     for a in range(m):
         tr += sinv[a, a]
-        sq += siz[a] * siz[a]
+        sq += wk[o_q + a] * wk[o_q + a]
     stat = r_eff * (m - r_eff * (tr - sq))
     res[_R_NIS] = nis
     res[_R_LOGDET] = logdet
