@@ -13,11 +13,17 @@ developer's edit; an installed package never changes): :func:`clear_stale_cache`
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
 import threading
 import time
 from pathlib import Path
 from types import ModuleType
+
+# LLVM's optimisation level for the kernels (numba reads it at each compile): at 1 they
+# compile a sixth faster than at numba's default 3 and run as fast (docs/performance.md); a
+# NUMBA_OPT set by the user wins. Code that compiles the kernels imports this module first.
+os.environ.setdefault("NUMBA_OPT", "1")
 
 _KERNELS_DIR = Path(__file__).resolve().parent / "kernels"
 #: Seconds before the first-run line is printed where a cache seemed to be there (it

@@ -130,9 +130,10 @@ class BiasObserver:
         k = self._k
         has = k.run(k.OP_OUTPUT, self._buf, 0.0, self._none, self._none)
         d2 = 2 * self._n
-        out = self._st.out
-        self._s_out[:] = out[d2, :d2]
-        self._p_out[:] = out[:d2, :d2]
+        o = int(self._st.cfg[L.O_WK_OBS])
+        wk = self._st.wk
+        self._s_out[:] = wk[o : o + d2]
+        self._p_out[:] = wk[o + d2 : o + d2 + d2 * d2].reshape(d2, d2)
         return bool(has)
 
     @property

@@ -218,7 +218,7 @@ def sym_eigvals(a, out, work) -> None:
                     work[q, k] = s * apk + c * aqk
     for i in range(n):
         out[i] = work[i, i]
-    out.sort()
+    sort_small(out, n)
 
 
 @njit(inline="always", error_model="numpy")
@@ -228,6 +228,18 @@ def _frob2(a) -> float:
         for j in range(a.shape[1]):
             s += a[i, j] * a[i, j]
     return s
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def sort_small(v, count) -> None:
+    """Sort ``v[:count]`` ascending in place (insertion: a handful of values)."""
+    for i in range(1, count):
+        x = v[i]
+        j = i - 1
+        while j >= 0 and v[j] > x:
+            v[j + 1] = v[j]
+            j -= 1
+        v[j + 1] = x
 
 
 @njit(inline="always", error_model="numpy")

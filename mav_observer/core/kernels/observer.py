@@ -455,8 +455,8 @@ def run(op, buf, t, u, w) -> int:
     cheap): :func:`_run`'s operations, ``OP_VELOCITY_MEAN`` (``OP_VELOCITY`` with the
     interval's mean ``w``), and two that read:
 
-    * ``OP_OUTPUT``: the committed estimate, ``[x, a]`` into ``out``'s row ``2n`` and its
-      covariance into its first ``2n`` rows (columns ``0 .. 2n``); returns 1 if it has one;
+    * ``OP_OUTPUT``: the committed estimate, ``[x, a]`` (2n) and then its covariance
+      (2n, 2n, row by row) into ``wk`` from ``cfg[O_WK_OBS]``; returns 1 if it has one;
     * ``OP_DISPLACEMENT``: the integral of ``v`` from ``t`` to ``u[0]`` (m), as the
       estimates are predicted with it, into ``out``'s first row (at least one velocity
       sample)."""
@@ -464,8 +464,9 @@ def run(op, buf, t, u, w) -> int:
     n = int(cfg[O_N])
     if op == OP_OUTPUT:
         d2 = 2 * n
-        has = estimator.output(cfg, s, vec, fs, fp, out[d2, :d2], out[:d2, :d2], wk)
-        return 1 if has else 0
+        o = _scratch(cfg)
+        st, p = wk[o : o + d2], wk[o + d2 : o + d2 + d2 * d2].reshape((d2, d2))
+        return 1 if estimator.output(cfg, s, vec, fs, fp, st, p, wk) else 0
     if op == OP_DISPLACEMENT:
         streams.predicted_displacement(_q(s), vbuf, t, u[0], cfg[O_LINEAR] != 0.0,
                                        cfg[O_MAX_VELOCITY_AGE_S], out[0, :n], wk)  # fmt: skip

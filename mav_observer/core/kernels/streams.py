@@ -21,6 +21,7 @@ import math
 
 from numba import njit
 
+from mav_observer.core.kernels.algebra import sort_small
 from mav_observer.core.kernels.layout import (
     Q_EX_S,
     Q_EX_SP,
@@ -297,7 +298,7 @@ def breakpoints(q, vbuf, bbuf, t0, t1, min_interval_s, max_bearing_age_s, out) -
         if t0 < te < t1:
             inner[k] = te
             k += 1
-    inner[:k].sort()
+    sort_small(inner, k)
     out[0] = t0
     c = 1
     for i in range(k):
