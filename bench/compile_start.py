@@ -10,6 +10,9 @@ Run: ``python bench/compile_start.py`` (``--repeat N``, ``--json``).
   mav_observer.replay"`` (replay's own start-up without the estimator), whole processes,
   runs alternating, the best of ``--repeat`` of each: the difference is what loading the
   compiled estimator adds to a start.
+
+``--profile``: one compile in this process with an empty cache, and the seconds spent in each
+compiled function, its callees' compiles excluded (numba's compile events).
 """
 
 from __future__ import annotations
@@ -35,12 +38,53 @@ def _run(code: str, env: dict[str, str]) -> float:
     return time.perf_counter() - t0
 
 
+def profile(top: int = 12) -> list[tuple[str, int, float]]:
+    """Compile the kernels in this process into an empty cache: ``(function, signatures,
+    seconds)`` by the time spent in each, callees excluded, the most first."""
+    with tempfile.TemporaryDirectory() as cache:
+        os.environ["NUMBA_CACHE_DIR"] = cache
+        from numba.core import event
+
+        stack: list[list[float]] = []
+        spent: dict[str, list[float]] = {}
+
+        class Listener(event.Listener):
+            def on_start(self, ev: event.Event) -> None:
+                stack.append([time.perf_counter(), 0.0])
+
+            def on_end(self, ev: event.Event) -> None:
+                t0, children = stack.pop()
+                f = ev.data["dispatcher"].py_func
+                name = f"{f.__module__.rsplit('.', 1)[-1]}.{f.__name__}"
+                took = time.perf_counter() - t0
+                spent.setdefault(name, []).append(took - children)
+                if stack:
+                    stack[-1][1] += took
+
+        event.register("numba:compile", Listener())
+        sys.path.insert(0, str(ROOT))
+        from mav_observer.core import compiled
+
+        compiled.kernels()
+    rows = sorted(((k, len(v), sum(v)) for k, v in spent.items()), key=lambda r: -r[2])
+    rest = rows[top:]
+    return [*rows[:top], ("(the others)", sum(r[1] for r in rest), sum(r[2] for r in rest))]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--compiles", type=int, default=1, help="cold compiles timed")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--profile", action="store_true", help="where the compile goes")
     args = parser.parse_args()
+    if args.profile:
+        rows = profile()
+        print(f"{'function':40s} {'signatures':>10s} {'seconds':>8s}")
+        for name, count, secs in rows:
+            print(f"{name:40s} {count:10d} {secs:8.2f}")
+        print(f"{'total':40s} {'':10s} {sum(r[2] for r in rows):8.2f}")
+        return 0
     if args.repeat < 1 or args.compiles < 1:
         parser.error("--repeat and --compiles must be at least 1")
     env = dict(os.environ)

@@ -27,8 +27,9 @@ TIMING_CASE = core.Case("orbit", 0.5, 0.0)
 
 ESTIMATOR_TEXT = {
     "riccati": (
-        "**riccati (ours)**, the product's default (`mav_observer.riccati`, batched here "
-        "through `bank_start` / `bank_predict` / `bank_update` / `bank_estimate`): per run a "
+        "**riccati (ours)**, the product's default (the compiled kernels of "
+        "`mav_observer/core/kernels/bank.py`, run over the runs by "
+        "`bench/accuracy/bankruns.py`): per run a "
         "bank of 7 extended Kalman filters on `[x, a]` whose initial ranges span `r0 / 16` to "
         "`16 r0`, weighted by their bearing likelihoods and pruned, plus one Riccati observer "
         "(the pseudo-linear form, which converges from any initial state under persistent "
@@ -38,15 +39,16 @@ ESTIMATOR_TEXT = {
     ),
     "ekf": (
         "**EKF** (baseline, `bench/accuracy/estimators.py` only): one extended Kalman filter on "
-        "`[x, a]` per run, the tracking form of `riccati.update` (innovation: the sines of the "
-        "angle between the measured and the estimated bearing), started at `r0 y0` with a "
+        "`[x, a]` per run, the tracking form of the bank's filter update "
+        "(`bank.update_filter`; innovation: the sines of the angle between the measured and "
+        "the estimated bearing), started at `r0 y0` with a "
         "range standard deviation of `1.0 r0` along the bearing and 5 m/s on each bias "
         "component; no process noise but the velocity's. Efficient once near the truth, "
         "local only."
     ),
     "plkf": (
         "**PLKF** (baseline): the pseudo-linear Kalman filter, the acquisition form of "
-        "`riccati.update` with the constant weight range `r0` (`r_min = r_max = r0`), prior "
+        "the bank's filter update with the constant weight range `r0`, prior "
         "range std `3 r0`. Its output `E^T x = 0` is linear in the state, so it converges "
         "globally, but the measured bearing's tangent basis is correlated with the noise: "
         "its range is biased short by a few `sigma^2` and it is not efficient."
