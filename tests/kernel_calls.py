@@ -24,6 +24,7 @@ from numba import njit
 from mav_observer.core.compiled import clear_stale_cache
 from mav_observer.core.kernels import algebra, bank, learners, monitor, paper, streams
 from mav_observer.core.kernels import layout as L
+from mav_observer.core.state import reset_streams
 
 _ROOT = Path(__file__).resolve().parents[1]
 if str(_ROOT) not in sys.path:  # (the harness's bench.accuracy.bankruns)
@@ -443,9 +444,7 @@ def streams_call(
     op, q, vbuf, bbuf, t, t1, vec, linear, mba, mva, max_buffer, min_interval, out
 ):  # pragma: no cover - compiled
     """The streams' kernels on ``(q, vbuf, bbuf)``; ``out`` a vector result."""
-    if op == 0:
-        streams.reset(q)
-    elif op == 1:
+    if op == 1:
         streams.append_velocity(q, vbuf, t, vec)
     elif op == 2:
         streams.append_bearing(q, bbuf, t, vec)
@@ -496,7 +495,7 @@ class Streams:
         self.linear = linear
         self.max_buffer = max_buffer
         self.mba, self.mva = max_bearing_age_s, max_velocity_age_s
-        self._call(S_RESET)
+        reset_streams(self.q)
 
     def _call(self, op, t=0.0, t1=0.0, vec=None, out=None, min_interval=0.0) -> float:
         return streams_call(

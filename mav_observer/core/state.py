@@ -25,9 +25,6 @@ from mav_observer.errors import StateError
 
 #: Version of the saved state (:meth:`~mav_observer.core.observer.BiasObserver.to_dict`).
 STATE_SCHEMA = 3
-#: Sample times closer than this to an interval end are merged (s) by the paper's observer
-#: with linear interpolation (see ``kernels.streams``).
-MIN_INTERVAL_S = 0.01
 #: The arrays a saved state holds (the settings are saved as the configuration).
 SAVED = ("s", "vec", "fs", "fp", "vbuf", "bbuf", "win")
 
@@ -73,7 +70,7 @@ def config_array(config: ObserverConfig, committed: bool) -> np.ndarray:
     cfg[L.O_HOLD_SPEED2] = c.hold_speed_mps**2
     cfg[L.O_HOLD_COS] = math.cos(math.radians(c.hold_innovation_deg))
     paper_linear = c.estimator == "paper" and c.interpolation == "linear"
-    cfg[L.O_MIN_INTERVAL_S] = MIN_INTERVAL_S if paper_linear else 0.0
+    cfg[L.O_MIN_INTERVAL_S] = L.MIN_INTERVAL_S if paper_linear else 0.0
     cfg[L.O_RANGE_GUESS_M] = c.range_guess_m
     cfg[L.O_INITIAL_RANGE_M] = math.nan if c.initial_range_m is None else c.initial_range_m
     told_v = c.velocity_noise_mps
@@ -148,6 +145,14 @@ def new_state(config: ObserverConfig, committed: bool = False) -> ObserverState:
     return st
 
 
+def reset_streams(q: np.ndarray) -> None:
+    """The sample streams' scalars (``layout.Q_*``) as before any sample."""
+    q[:] = 0.0
+    q[L.Q_VDT] = L.DEFAULT_VELOCITY_DT_S
+    q[L.Q_EX_WP] = L.EXTRAPOLATION_PRIOR_WEIGHT
+    q[L.Q_EX_SP] = L.EXTRAPOLATION_PRIOR_WEIGHT * L.EXTRAPOLATION_PRIOR_MPS2**2
+
+
 def reset(st: ObserverState, config: ObserverConfig) -> None:
     """Back to the configured initial state, not started."""
     for name in SAVED:
@@ -156,15 +161,12 @@ def reset(st: ObserverState, config: ObserverConfig) -> None:
     for i in (L.S_T_C, L.S_SINCE, L.S_DIAG_T, L.S_T_BEARING):
         s[i] = math.nan
     s[L.S_STATUS] = L.STALE
-    q = L.OFF_Q
-    s[q + L.Q_VDT] = 0.05  # kernels.streams.DEFAULT_VELOCITY_DT_S
-    s[q + L.Q_EX_WP] = 3.0  # its EXTRAPOLATION_PRIOR_WEIGHT ...
-    s[q + L.Q_EX_SP] = 3.0  # ... times EXTRAPOLATION_PRIOR_MPS2 squared
+    reset_streams(s[L.OFF_Q : L.OFF_Q + L.Q_COUNT])
     for i in (L.L_T, L.L_T0, L.L_B_T0):
         s[L.OFF_LAT + i] = math.nan
     s[L.OFF_SET + L.T_REF] = math.nan
-    s[L.OFF_VN + L.V_WP] = 20.0  # kernels.learners.VN_PRIOR_SAMPLES
-    s[L.OFF_VN + L.V_SP] = 20.0 * VELOCITY_NOISE_PRIOR_MPS**2
+    s[L.OFF_VN + L.V_WP] = L.VN_PRIOR_SAMPLES
+    s[L.OFF_VN + L.V_SP] = L.VN_PRIOR_SAMPLES * VELOCITY_NOISE_PRIOR_MPS**2
     xh1, m, ahat = config.initial_state()
     st.vec[L.R_XH1] = xh1
     st.vec[L.R_AHAT] = ahat

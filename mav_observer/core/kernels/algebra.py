@@ -13,6 +13,12 @@ from numba import njit
 
 
 @njit(inline="always", error_model="numpy")
+def carve(wk, o, size):
+    """``wk[o : o + size]`` and the offset after it: scratch handed out piece by piece."""
+    return wk[o : o + size], o + size
+
+
+@njit(inline="always", error_model="numpy")
 def dot(a, b) -> float:
     """``a . b`` of two vectors of the same length."""
     s = 0.0

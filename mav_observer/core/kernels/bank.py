@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from mav_observer.core.kernels.algebra import mahalanobis2, solve, spd_inverse
+from mav_observer.core.kernels.algebra import carve, mahalanobis2, solve, spd_inverse
 from mav_observer.core.kernels.layout import (
     B_AGE_S,
     B_BEARINGS,
@@ -469,22 +469,18 @@ def _merge(fs, fp, logw, bs, bp, wk) -> None:
         if logw[i] > logw[kmax]:
             kmax = i
     o = 0
-    diff = wk[o : o + d2]
-    o += d2
-    acov = wk[o : o + d2 * d2].reshape((d2, d2))
-    o += d2 * d2
-    low = wk[o : o + d2 * d2].reshape((d2, d2))
-    o += d2 * d2
-    zv = wk[o : o + d2]
-    o += d2
-    gauss = wk[o : o + d2 * (d2 + 1)].reshape((d2, d2 + 1))
-    o += d2 * (d2 + 1)
-    close = wk[o : o + f]
-    o += f
-    mean = wk[o : o + d2]
-    o += d2
-    acc = wk[o : o + d2 * d2].reshape((d2, d2))
-    o += d2 * d2
+    diff, o = carve(wk, o, d2)
+    acov, o = carve(wk, o, d2 * d2)
+    acov = acov.reshape((d2, d2))
+    low, o = carve(wk, o, d2 * d2)
+    low = low.reshape((d2, d2))
+    zv, o = carve(wk, o, d2)
+    gauss, o = carve(wk, o, d2 * (d2 + 1))
+    gauss = gauss.reshape((d2, d2 + 1))
+    close, o = carve(wk, o, f)
+    mean, o = carve(wk, o, d2)
+    acc, o = carve(wk, o, d2 * d2)
+    acc = acc.reshape((d2, d2))
     bar = bp[P_MERGE_MAHA]
     any_close = False
     for i in range(f):

@@ -222,6 +222,20 @@ C_COVERED = 1
 C_VALID = 2
 C_YY = 3
 
+# -- what a new state starts from (``mav_observer.core.state.reset``) ---------------------------
+#: The velocity's sample interval (s) assumed before two samples have arrived.
+DEFAULT_VELOCITY_DT_S = 0.05
+#: The prior of a sparse stream's extrapolation error (m/s^2 per axis), and how many
+#: intervals it weighs.
+EXTRAPOLATION_PRIOR_MPS2 = 1.0
+EXTRAPOLATION_PRIOR_WEIGHT = 3.0
+#: How many samples the velocity noise's prior weighs.
+VN_PRIOR_SAMPLES = 20.0
+#: Sample times closer than this to an interval end are not made breakpoints (s), for an
+#: estimator that merges them (the paper's, with linear interpolation): a sliver of a few
+#: ms costs far less to merge than the sub-step it would take.
+MIN_INTERVAL_S = 0.01
+
 # -- return codes of the entry points (>= 0: committed estimates written) --------------------
 ERR_VELOCITY_BACKWARDS = -1
 ERR_BEARING_BACKWARDS = -2

@@ -61,14 +61,6 @@ LAT_GATE_SIGMA = 3.0
 
 
 @njit(inline="always", error_model="numpy")
-def latency_reset(lat) -> None:
-    lat[:] = 0.0
-    lat[L_T] = math.nan
-    lat[L_T0] = math.nan
-    lat[L_B_T0] = math.nan
-
-
-@njit(inline="always", error_model="numpy")
 def latency_learning_for(lat, t) -> float:
     """How long (s) it has been learning at ``t``: 0 before its first bearing."""
     return 0.0 if math.isnan(lat[L_T0]) else max(t - lat[L_T0], 0.0)
@@ -199,16 +191,8 @@ VN_PRIOR_GONE = 1e-6
 VN_CLIP = 25.0
 #: ... and at least this (m^2/s^2): from zero, the estimate can still grow.
 VN_CLIP_FLOOR = 1e-4
+#: The forgetting time constant (s); the prior's weight is set with the state (``layout``).
 VN_MEMORY_S = 60.0
-VN_PRIOR_SAMPLES = 20.0
-
-
-@njit(inline="always", error_model="numpy")
-def vnoise_reset(vn, last, prior_mps) -> None:
-    vn[:] = 0.0
-    vn[V_WP] = VN_PRIOR_SAMPLES
-    vn[V_SP] = VN_PRIOR_SAMPLES * prior_mps**2
-    last[:, :] = 0.0
 
 
 @njit(inline="always", error_model="numpy")

@@ -19,6 +19,7 @@ import math
 from numba import njit
 
 from mav_observer.core.kernels import bank, estimator, monitor, streams
+from mav_observer.core.kernels.algebra import carve
 from mav_observer.core.kernels.layout import (
     A_BBUF,
     A_CFG,
@@ -117,23 +118,15 @@ def _commit_piece(cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t0, t1, at_bear
     linear = cfg[O_LINEAR] != 0.0
     mba, mva = cfg[O_MAX_BEARING_AGE_S], cfg[O_MAX_VELOCITY_AGE_S]
     o = 0
-    before = sub[o : o + d2]
-    o += d2
-    after = sub[o : o + d2]
-    o += d2
-    openloop = sub[o : o + n]
-    o += n
-    moved = sub[o : o + n]
-    o += n
-    v = sub[o : o + n]
-    o += n
-    y = sub[o : o + n]
-    o += n
-    ymid = sub[o : o + n]
-    o += n
+    before, o = carve(sub, o, d2)
+    after, o = carve(sub, o, d2)
+    openloop, o = carve(sub, o, n)
+    moved, o = carve(sub, o, n)
+    v, o = carve(sub, o, n)
+    y, o = carve(sub, o, n)
+    ymid, o = carve(sub, o, n)
     cap = vbuf.shape[0]
-    pts = sub[o : o + 3 * cap + 4]
-    o += 3 * cap + 4
+    pts, o = carve(sub, o, 3 * cap + 4)
     nb = int(q[Q_NB])
     estimator.mean(cfg, s, vec, fs, before)
     kind_paper = cfg[O_KIND] != 0.0
@@ -198,16 +191,13 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
     d2 = 2 * n
     q = _q(s)
     o = 0
-    st = sub[o : o + d2]
-    o += d2
-    p = sub[o : o + d2 * d2].reshape((d2, d2))
-    o += d2 * d2
-    pxx = sub[o : o + n * n].reshape((n, n))
-    o += n * n
-    xh = sub[o : o + n]
-    o += n
-    disp = sub[o : o + n]
-    o += n
+    st, o = carve(sub, o, d2)
+    p, o = carve(sub, o, d2 * d2)
+    p = p.reshape((d2, d2))
+    pxx, o = carve(sub, o, n * n)
+    pxx = pxx.reshape((n, n))
+    xh, o = carve(sub, o, n)
+    disp, o = carve(sub, o, n)
     wk2 = sub[o:]
     t_c = s[S_T_C]
     started = not math.isnan(t_c)

@@ -24,7 +24,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
+
+from mav_observer.core.kernels.algebra import solve
 
 #: Largest ``max(k, k*) h`` of one sub-step (inputs frozen at its midpoint: at 20 Hz with
 #: k* = 5, four sub-steps, within 4e-4 of a fine integration of the continuous equations).
@@ -78,8 +81,8 @@ def first_filter_step(xh1, m, y, has_y, v, k, h) -> None:
 
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def solve_pair(m, b0, b1, out0, out1, work) -> None:
-    """``out0 = M^-1 b0``, ``out1 = M^-1 b1``: closed form for n = 2 and 3, Gauss-Jordan
-    with partial pivoting above (``work`` (n, n + 2) scratch)."""
+    """``out0 = M^-1 b0``, ``out1 = M^-1 b1``: closed form for n = 2 and 3, the pivoting
+    solve of :mod:`~mav_observer.core.kernels.algebra` above (``work`` (n, n + 2) scratch)."""
     n = b0.shape[0]
     if n == 3:
         a, b, c = m[0, 0], m[0, 1], m[0, 2]
@@ -106,29 +109,12 @@ def solve_pair(m, b0, b1, out0, out1, work) -> None:
         out0[0], out0[1] = x0, x1
         out1[0], out1[1] = w0, w1
         return
+    b = np.empty((n, 2))  # (above three dimensions only: rare, allocated)
     for r in range(n):
-        for cc in range(n):
-            work[r, cc] = m[r, cc]
-        work[r, n] = b0[r]
-        work[r, n + 1] = b1[r]
-    for col in range(n):
-        piv = col
-        for r in range(col + 1, n):
-            if abs(work[r, col]) > abs(work[piv, col]):
-                piv = r
-        if piv != col:
-            for cc in range(n + 2):
-                t = work[col, cc]
-                work[col, cc] = work[piv, cc]
-                work[piv, cc] = t
-        for r in range(n):
-            if r != col and work[r, col] != 0.0:
-                fct = work[r, col] / work[col, col]
-                for cc in range(col, n + 2):
-                    work[r, cc] -= fct * work[col, cc]
+        b[r, 0], b[r, 1] = b0[r], b1[r]
+    solve(m, b, work)
     for r in range(n):
-        out0[r] = work[r, n] / work[r, r]
-        out1[r] = work[r, n + 1] / work[r, r]
+        out0[r], out1[r] = b[r, 0], b[r, 1]
 
 
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")

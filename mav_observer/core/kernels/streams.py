@@ -35,28 +35,12 @@ from mav_observer.core.kernels.layout import (
     VB_V,
 )
 
-#: Sample times closer than this to an interval end are not made breakpoints (s), for an
-#: estimator that merges them (the paper's, with linear interpolation): a sliver of a few
-#: ms costs far less to merge than the sub-step it would take.
-MIN_INTERVAL_S = 0.01
-#: The velocity's sample interval (s) assumed before two samples have arrived.
-DEFAULT_VELOCITY_DT_S = 0.05
-#: The prior of a sparse stream's extrapolation error (m/s^2 per axis), and how many
-#: intervals it weighs; its forgetting time constant (s).
-EXTRAPOLATION_PRIOR_MPS2 = 1.0
-EXTRAPOLATION_PRIOR_WEIGHT = 3.0
+#: The forgetting time constant (s) of a sparse stream's extrapolation error (its prior, and
+#: the breakpoints' merging interval, are set with the state: ``layout``).
 EXTRAPOLATION_MEMORY_S = 60.0
 #: A velocity interval at least this long (s) whose mean is known from the positions is a
 #: sparse stream's: a prediction past its latest sample continues its trend.
 SPARSE_INTERVAL_S = 0.2
-
-
-@njit(inline="always", error_model="numpy")
-def reset(q) -> None:
-    q[:] = 0.0
-    q[Q_VDT] = DEFAULT_VELOCITY_DT_S
-    q[Q_EX_WP] = EXTRAPOLATION_PRIOR_WEIGHT
-    q[Q_EX_SP] = EXTRAPOLATION_PRIOR_WEIGHT * EXTRAPOLATION_PRIOR_MPS2**2
 
 
 @njit(inline="always", error_model="numpy")
