@@ -11,7 +11,7 @@ import time
 from typing import Any
 
 from mav_observer.mavlink.connection import udp_socket_stats
-from mav_observer.zenoh_io import open_session, session_config
+from mav_observer.outputs.zenoh_io import open_session, session_config
 from sim.live import free_port, service_command, stop_process, wait_for_peer
 
 
@@ -51,7 +51,7 @@ def start_service(
     """The service on free loopback ports, its output to a temporary file: ``(process,
     MAVLink UDP port, Zenoh TCP port, log file)``. Stop it with ``sim.live.stop_process``.
     ``prefix``: run it as ``python PREFIX... run ...`` instead of ``python -m mav_observer
-    run ...`` (a wrapper script that ends in ``mav_observer.cli.main``)."""
+    run ...`` (a wrapper script that ends in ``mav_observer.app.cli.main``)."""
     mav_port = free_port(socket.SOCK_DGRAM)
     z_port = free_port(socket.SOCK_STREAM)
     log = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115 - the caller closes it

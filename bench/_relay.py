@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mav_observer.zenoh_io import open_session, session_config
+from mav_observer.outputs.zenoh_io import open_session, session_config
 
 GIMBAL_DEVICE_ATTITUDE_STATUS = 285
 

@@ -2,9 +2,9 @@
 
 Run as ``python bench/_timed_service.py OUT.json run ARGS...``: ``mav-observer run ARGS``
 with the wall time (``time.perf_counter``) of each bearing message's
-:meth:`~mav_observer.service.Service.handle` (the tracker, the observer and the
+:meth:`~mav_observer.app.service.Service.handle` (the tracker, the observer and the
 publication of its estimate) and of each
-:meth:`~mav_observer.zenoh_io.Publications.estimate` (the record's publication over Zenoh)
+:meth:`~mav_observer.outputs.zenoh_io.Publications.estimate` (the record's publication over Zenoh)
 gathered, and written to ``OUT.json`` when the service stops (seconds, in order). The product
 is not changed: the two public methods are wrapped in this process only.
 """
@@ -19,8 +19,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mav_observer import cli, service, zenoh_io
+from mav_observer.app import cli, service
 from mav_observer.mavlink.dialect import type_key
+from mav_observer.outputs import zenoh_io
 
 BEARING = "GIMBAL_DEVICE_ATTITUDE_STATUS"
 

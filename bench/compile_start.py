@@ -7,7 +7,7 @@ Run: ``python bench/compile_start.py`` (``--repeat N``, ``--json``).
   empty folder, so numba compiles every kernel (the in-tree cache is left alone), the whole
   process timed; ``--repeat`` runs, each with its own empty folder.
 * **start-up**: the same with the warm cache, against ``python -c "import
-  mav_observer.replay"`` (replay's own start-up without the estimator), whole processes,
+  mav_observer.app.replay"`` (replay's own start-up without the estimator), whole processes,
   runs alternating, the best of ``--repeat`` of each: the difference is what loading the
   compiled estimator adds to a start.
 
@@ -27,8 +27,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-LOAD = "import mav_observer.replay; from mav_observer.core import compiled; compiled.kernels()"
-BASE = "import mav_observer.replay"
+LOAD = "import mav_observer.app.replay; from mav_observer.core import compiled; compiled.kernels()"
+BASE = "import mav_observer.app.replay"
 
 
 def _run(code: str, env: dict[str, str]) -> float:

@@ -28,9 +28,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from mav_observer.app.replay import replay  # noqa: E402
 from mav_observer.mavlink.connection import ConnectionReader  # noqa: E402
-from mav_observer.mavlink.tracker import Tracker  # noqa: E402
-from mav_observer.replay import replay  # noqa: E402
+from mav_observer.tracking.tracker import Tracker  # noqa: E402
 from sim import scenarios  # noqa: E402
 from sim.emitter import Emitter, EmitterConfig, run  # noqa: E402
 

@@ -5,13 +5,13 @@ Run: ``python bench/replay_throughput.py`` (a few minutes; ``--quick`` skips the
 
 Two figures per file, each a ratio against its baseline measured in the same run:
 
-* **whole processes** (issue 13's definition; start-up included): ``mav-observer replay LOG -o
+* **whole processes** (start-up included): ``mav-observer replay LOG -o
   out.jsonl`` (as ``python -m mav_observer`` from this checkout) against ``python -c`` of the
   plain loop below, each a fresh interpreter, runs alternating, the best of ``--repeat``.
   Both run with byte-code caching on (an installed package has its byte code; this sandbox
   sets ``PYTHONDONTWRITEBYTECODE``, under which every one of our modules would be compiled at
   every start), after one untimed run of each. The
-  start-up alone is reported too: ``python -c "import mav_observer.replay"`` against ``python
+  start-up alone is reported too: ``python -c "import mav_observer.app.replay"`` against ``python
   -c "from pymavlink import mavutil"``, the floor of each side;
 * **in this process** (the work alone):
 
@@ -46,9 +46,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from mav_observer.app.replay import ReplayError, replay  # noqa: E402
 from mav_observer.mavlink.dialect import connect  # noqa: E402
-from mav_observer.mavlink.tracker import TrackerConfig  # noqa: E402
-from mav_observer.replay import ReplayError, replay  # noqa: E402
+from mav_observer.tracking.tracker import TrackerConfig  # noqa: E402
 from sim.tlogs import find_tlogs  # noqa: E402
 
 TLOGS = find_tlogs()
@@ -168,7 +168,7 @@ def measure_process(path: Path, repeat: int) -> dict[str, object]:
 def measure_startup(repeat: int) -> dict[str, float]:
     """The floor of each side: a fresh interpreter importing what it needs, best of
     ``repeat`` alternating runs."""
-    ours = [sys.executable, "-c", "import mav_observer.replay"]
+    ours = [sys.executable, "-c", "import mav_observer.app.replay"]
     theirs = [sys.executable, "-c", "from pymavlink import mavutil"]
     bare = [sys.executable, "-c", "pass"]
     for cmd in (ours, theirs, bare):
@@ -226,7 +226,7 @@ def main() -> int:
         st = measure_startup(args.repeat)
         results["startup"] = st
         print(
-            f"start-up: python alone {st['python_s']:.3f} s; import mav_observer.replay "
+            f"start-up: python alone {st['python_s']:.3f} s; import mav_observer.app.replay "
             f"{st['replay_import_s']:.3f} s; import pymavlink.mavutil "
             f"{st['mavutil_import_s']:.3f} s"
         )

@@ -23,7 +23,8 @@ Output: p50, p90, p99, p99.9, max and mean latency (ms) of the measured bearings
 produced no estimate (lost), the sender's own lateness against its schedule, and the service
 process's CPU share over the run; and the service's p50 and p99 apart for the bearings whose
 estimate was ``converged`` and the others (the estimator's acquisition, the bank's several
-hypotheses: most of the default run's 30 s). Goal (issue 13): p99 under 1 ms.
+hypotheses: most of the default run's 30 s). Goal: p50 within 1.3x and p99 within 1.5x the
+relay's (docs/performance.md).
 
 The baseline, measured first in the same run (``--no-baseline`` skips it): the same frames
 sent the same way to ``bench/_relay.py``, a process that only receives each datagram and, for

@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT / "bench"))
 import service_memory  # noqa: E402
 
 from mav_observer.mavlink.dialect import codec  # noqa: E402
-from mav_observer.mavlink.tracker import Tracker  # noqa: E402
+from mav_observer.tracking.tracker import Tracker  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
 
 FUZZ_SHARE = 0.01

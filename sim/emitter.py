@@ -25,7 +25,7 @@ Streams (each at its own rate, on the vehicle's simulated clock):
   SERVO_OUTPUT_RAW, ...), as an autopilot sends.
 
 Every bearing message is built by inverting the reader's frame chain
-(:mod:`mav_observer.mavlink.adapters`, ``docs/frames.md``), from the true line of sight with
+(:mod:`mav_observer.tracking.directions`, ``docs/frames.md``), from the true line of sight with
 isotropic angular noise and, optionally, gross errors (``outlier_prob``: a share of the
 bearings off the line of sight by 5 to 30 degrees by default, a tracker's false lock).
 Output: a tlog file and/or any pymavlink output string (127.0.0.1 in tests and examples),
@@ -47,9 +47,9 @@ from typing import Any, BinaryIO, TextIO
 
 import numpy as np
 
-from mav_observer.frames import quat_from_euler
-from mav_observer.mavlink import adapters
+from mav_observer.geo.frames import quat_from_euler
 from mav_observer.mavlink.dialect import codec, connect, mavlink
+from mav_observer.tracking import directions as adapters
 from sim import truth as truth_file
 from sim.scenarios import Scenario
 from sim.stream import perturb_bearings

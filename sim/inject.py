@@ -67,11 +67,11 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer.frames import euler_to_dcm, quat_from_euler
-from mav_observer.mavlink import adapters
+from mav_observer.geo.frames import euler_to_dcm, quat_from_euler
 from mav_observer.mavlink.dialect import MSG_ID, codec, mavlink
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
 from mav_observer.mavlink.tlog import MAGIC_V1, MAGIC_V2, TS_JUMP_MAX_US, TS_MAX_US, TS_MIN_US
+from mav_observer.tracking import directions as adapters
 from sim import truth as truth_file
 from sim.emitter import TARGET_OF
 from sim.stream import perturb_bearings
@@ -432,7 +432,7 @@ def interp_position(series: _Series, t_s: np.ndarray) -> np.ndarray:
 def interp_attitude(series: _Series, t_s: np.ndarray) -> np.ndarray:
     """Roll, pitch, yaw (rad) at ``t_s``, (T, 3): linear between the samples around (yaw
     unwrapped) when they are at most :data:`ATTITUDE_INTERP_MAX_S` apart, else the nearest,
-    as the tracker's :class:`~mav_observer.mavlink.attitude.AttitudeHistory` does."""
+    as the tracker's :class:`~mav_observer.tracking.attitude.AttitudeHistory` does."""
     ts, v = series.t_boot_s, series.values
     out = np.empty((len(t_s), 3))
     for k, t in enumerate(t_s):

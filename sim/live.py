@@ -26,7 +26,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from mav_observer import zenoh_io
+from mav_observer.outputs import zenoh_io
 from sim import emitter, scenarios
 
 #: Convergence tolerances (those of the MAVLink issue's acceptance): position error within

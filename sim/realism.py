@@ -46,9 +46,9 @@ from typing import Any
 
 import numpy as np
 
-from mav_observer.frames import quat_from_euler
-from mav_observer.mavlink import adapters
+from mav_observer.geo.frames import quat_from_euler
 from mav_observer.mavlink.dialect import MSG_ID, codec
+from mav_observer.tracking import directions as adapters
 from sim import truth as truth_file
 from sim.emitter import AUTOPILOT, Emission
 from sim.vehicle import Vehicle

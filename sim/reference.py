@@ -1,6 +1,7 @@
 """Reference solution of the *continuous* observer equations by fixed-step RK4 (pure).
 
-This is deliberately independent of :mod:`mav_observer.discrete`: it integrates the paper's
+This is deliberately independent of the product's discretisation
+(:mod:`mav_observer.core.kernels.paper`): it integrates the paper's
 state ``(xh1, M, zs)`` exactly as written (corrected sign), with the scenario's true,
 continuous bearing ``y(t)`` and velocity ``v(t)``::
 

@@ -5,7 +5,7 @@ Owned here and written only through :func:`record` and :func:`write`, by the emi
 (:mod:`sim.inject`). Its first five keys (``t_boot_s``, ``sysid``, ``target``,
 ``rel_pos_ned_m``, ``bias_ned_mps``) carry the names and meaning of the product's estimate
 record, so a truth file is also a *reference track* that ``mav-observer replay --truth`` reads
-(:mod:`mav_observer.reference`, ``docs/schema.md``); the product parses nothing else of it.
+(:mod:`mav_observer.app.reference`, ``docs/schema.md``); the product parses nothing else of it.
 
 ==============================  ===================================================================
 ``t_unix_s``                    tlog time of the bearing message, s

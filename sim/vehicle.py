@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mav_observer.frames import Mat3, euler_from_dcm, euler_to_dcm
+from mav_observer.geo.frames import Mat3, euler_from_dcm, euler_to_dcm
 from sim.scenarios import Scenario
 
 GRAVITY_MPS2 = 9.80665

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 import pytest
 import zenoh
 
-from mav_observer.zenoh_io import open_session, session_config
+from mav_observer.outputs.zenoh_io import open_session, session_config
 
 
 def free_tcp_port() -> int:

@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 from mav_observer.core.compiled import clear_stale_cache
-from mav_observer.core.kernels import algebra, bank, learners, monitor, paper, streams
+from mav_observer.core.kernels import algebra, bank, kalman, learners, monitor, paper, streams
 from mav_observer.core.kernels import layout as L
 from mav_observer.core.state import reset_streams
 
@@ -132,19 +132,19 @@ def bank_call(
         kw = np.zeros(4096)
         res = np.zeros(4)
         if op == 9:
-            bank.predict_filter(s, pp, d, h, q_x, args[0])
+            kalman.predict_filter(s, pp, d, h, q_x, args[0])
         elif op == 10:
-            bank.update_filter(s, pp, yy, args[1], args[2], args[3], kw, res)
+            kalman.update_filter(s, pp, yy, args[1], args[2], args[3], kw, res)
             args[4:8] = res
         elif op == 11:
             n = yy.shape[0]
             x = s[:n].copy()
             pxx = pp[:n, :n].copy()
-            bank.position_update(x, pxx, yy, args[1], args[3], kw)
+            kalman.position_update(x, pxx, yy, args[1], args[3], kw)
             s[:n] = x
             pp[:n, :n] = pxx
         elif op == 12:
-            bank.initial_covariance(yy, h, q_x, args[0], args[1], pp)
+            kalman.initial_covariance(yy, h, q_x, args[0], args[1], pp)
         return
     for r in range(fs.shape[0]):
         if op == 0:

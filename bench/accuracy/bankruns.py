@@ -17,7 +17,7 @@ from numba import njit, prange
 
 from mav_observer.core.compiled import clear_stale_cache
 from mav_observer.core.config import BankParams
-from mav_observer.core.kernels import bank
+from mav_observer.core.kernels import bank, kalman
 from mav_observer.core.kernels.layout import B_COUNT
 from mav_observer.core.state import bank_scratch_size
 
@@ -102,13 +102,13 @@ class FilterRuns:
 def _filter_update(s, p, y, sig2, r_w, wk):  # pragma: no cover - compiled
     for r in prange(s.shape[0]):
         res = np.empty(4)
-        bank.update_filter(s[r], p[r], y[r], sig2, r_w[r], math.inf, wk[r], res)
+        kalman.update_filter(s[r], p[r], y[r], sig2, r_w[r], math.inf, wk[r], res)
 
 
 @njit(cache=True, parallel=True)
 def _filter_predict(s, p, dx, h, q_x):  # pragma: no cover - compiled
     for r in prange(s.shape[0]):
-        bank.predict_filter(s[r], p[r], dx[r], h, q_x, 0.0)
+        kalman.predict_filter(s[r], p[r], dx[r], h, q_x, 0.0)
 
 
 def initial_covariance(y0: np.ndarray, range0: np.ndarray, range_std: np.ndarray,
@@ -125,4 +125,4 @@ def initial_covariance(y0: np.ndarray, range0: np.ndarray, range_std: np.ndarray
 @njit(cache=True)
 def _initial_covariance(y0, range0, range_std, bias_std, sigma, out):  # pragma: no cover
     for r in range(y0.shape[0]):
-        bank.initial_covariance(y0[r], range0[r], range_std[r], bias_std, sigma, out[r])
+        kalman.initial_covariance(y0[r], range0[r], range_std[r], bias_std, sigma, out[r])

@@ -49,7 +49,7 @@ import numpy as np
 
 from bench.accuracy import reallogs
 from bench.accuracy.report import markdown_table
-from mav_observer.batch import fit_batch
+from mav_observer.core.batch_fit import fit_batch
 from sim import inject as inj
 
 

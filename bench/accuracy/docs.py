@@ -40,7 +40,7 @@ ESTIMATOR_TEXT = {
     "ekf": (
         "**EKF** (baseline, `bench/accuracy/estimators.py` only): one extended Kalman filter on "
         "`[x, a]` per run, the tracking form of the bank's filter update "
-        "(`bank.update_filter`; innovation: the sines of the angle between the measured and "
+        "(`kalman.update_filter`; innovation: the sines of the angle between the measured and "
         "the estimated bearing), started at `r0 y0` with a "
         "range standard deviation of `1.0 r0` along the bearing and 5 m/s on each bias "
         "component; no process noise but the velocity's. Efficient once near the truth, "
@@ -64,8 +64,8 @@ ESTIMATOR_TEXT = {
     "observer02": (
         "**observer (0.2, 0.2)**: the same observer with `k = k* = 0.2` "
         "(`ObserverConfig.paper(k_per_s=0.2, k_star_per_s=0.2, initial_range_m=r0)`), the "
-        "previous product default: stable at drone scale, but a fixed-gain observer, several "
-        "times above the bound and slow to converge."
+        "`paper` estimator's default gains: stable at drone scale, but a fixed-gain observer, "
+        "several times above the bound and slow to converge."
     ),
 }
 
@@ -315,7 +315,7 @@ def _markdown(
         "",
         f"{TIMING_RUNS} runs of the riccati estimator, {TIMING_CASE.label}, 300 s at 20 Hz "
         f"(6,001 steps), one process: **{timing.wall_s:.1f} s** wall (data generation, the "
-        f"estimator and the metrics; goal: under 20 s). RMS {fmt(m['rms'])} m, CRLB "
+        f"estimator and the metrics; goal: under 5 s). RMS {fmt(m['rms'])} m, CRLB "
         f"{fmt(m['crlb'])} m, ratio {fmt(m['ratio'])}, NEES/dof {fmt(m['nees'])}, diverged "
         f"{100 * m['diverged']:.1f} %.",
         "",

@@ -10,7 +10,7 @@ directly, every run here goes the way a user's data goes:
    bearing stream and the realism knobs of :class:`sim.emitter.EmitterConfig` (per-stream
    latency and jitter, a gimbal that is its own component with its own drifting clock, fast
    yaw, sparse or coloured velocity, dropouts, tlog clock jitter and jumps), with its truth;
-2. the tlog is replayed by the product's own replay (:func:`mav_observer.replay.replay`) with
+2. the tlog is replayed by the product's own replay (:func:`mav_observer.app.replay.replay`) with
    the settings a user would write in a settings file (``settings`` of the case: the bearing
    and velocity noise told, or nothing for the defaults): what replay publishes by default,
    each bearing's estimate once the velocity after it is known, or with ``--live`` what the
@@ -47,10 +47,10 @@ import numpy as np
 
 from bench.accuracy import blocks, core, geo
 from bench.accuracy.report import markdown_table
-from mav_observer import settings as st
+from mav_observer.app import settings as st
+from mav_observer.app.replay import replay
 from mav_observer.core.observer import ObserverConfig
-from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.replay import replay
+from mav_observer.tracking.tracker import TrackerConfig
 from sim import emitter as em
 from sim import realism, scenarios
 from sim import truth as truth_file
@@ -737,7 +737,7 @@ def markdown(
         "`sim/realism.py`, `mav-observer replay`'s code reads it with the settings a user "
         "would write in a settings file (the bearing and velocity noise told) and publishes "
         "each bearing's estimate once the velocity after it is known (replay's default; "
-        "`--live`, what the service publishes, below), and the "
+        "`--live`, what the service publishes, above), and the "
         "estimates are scored against the emitter's truth and the Cramér-Rao bound along the "
         "same truth. RMS over the last third of every run, pooled over seeds (one run's error "
         "is correlated over minutes: one seed alone ranges from 0.6x to 1.6x the bound); NEES "

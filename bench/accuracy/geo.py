@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import pymap3d
 
-from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.replay import replay
+from mav_observer.app.replay import replay
+from mav_observer.tracking.tracker import TrackerConfig
 from sim.tlogs import find_tlogs
 
 LOG = "ardupilot_sitl_servo_mount_roi.tlog"

@@ -9,10 +9,10 @@ For every log (default: every shared log in ``../shared/tlogs`` with LOCAL_POSIT
    frame (``--target auto``: under the middle of the flight, 2 m below its lowest point), with
    isotropic noise and a wind-like error added to LOCAL_POSITION_NED's velocity, and writes
    the truth;
-2. the product replays the new log (:func:`mav_observer.replay.replay`, default settings unless
+2. the product replays the new log (:func:`mav_observer.app.replay.replay`, default settings unless
    ``--settings`` names a settings file's ``[observer]`` table);
 3. the same bearings and the log's own LOCAL_POSITION_NED go to the batch least-squares fit
-   over the whole log (:func:`mav_observer.batch.fit_batch`, told the true noise): the best
+   over the whole log (:func:`mav_observer.core.batch_fit.fit_batch`, told the true noise): the best
    the data allows;
 4. both are scored against the truth over the last third of the injected span: position RMS
    relative to the range (RMS of ``|error| / range``), and the ratio of the two.
@@ -35,10 +35,10 @@ import numpy as np
 
 from bench.accuracy import blocks
 from bench.accuracy.report import markdown_table
-from mav_observer.batch import displacement_at, fit_batch
+from mav_observer.app.replay import ReplayError, replay
+from mav_observer.core.batch_fit import displacement_at, fit_batch
 from mav_observer.core.observer import ObserverConfig
-from mav_observer.mavlink.tracker import TrackerConfig
-from mav_observer.replay import ReplayError, replay
+from mav_observer.tracking.tracker import TrackerConfig
 from sim import inject as inj
 from sim.tlogs import find_tlogs
 
@@ -320,7 +320,8 @@ def markdown(
         "velocity after it is known, replay's default; the service's live ones: "
         "[estimator.md](estimator.md#what-a-live-estimator-can-do-on-the-sparse-logs)); the "
         "batch least-squares fit of `x0` and a "
-        "constant `a` over the whole log (`mav_observer.batch`, told the true noise, the same "
+        "constant `a` over the whole log (`mav_observer.core.batch_fit`, told the true noise, "
+        "the same "
         "velocity and positions) is the offline reference. Position RMS relative to the range "
         "(RMS of `|error| / range`) over the last third of the injected span, mean over seeds. "
         "Then `replay --smooth` (batch fits on windows, the product's "

@@ -8,7 +8,7 @@ best offline fit makes of those bearings.
 read both ways, the vehicle attitude from ATTITUDE interpolated to the gimbal's time) are
 compared with the line of sight from LOCAL_POSITION_NED to the ROI: the angle between them
 (deg) from the time the gimbal turns to the ROI (55 s). Then the batch least-squares fit
-(:func:`mav_observer.batch.fit_batch`, ``x0`` and a constant ``a``, covariance scaled by
+(:func:`mav_observer.core.batch_fit.fit_batch`, ``x0`` and a constant ``a``, covariance scaled by
 the residuals) over windows of the log: its horizontal distance from the ROI and its own
 1-sigma. The gap between the two says how correlated the pointing errors are.
 """
@@ -21,8 +21,8 @@ import sys
 import numpy as np
 from pymavlink import mavutil
 
-from mav_observer import batch
-from mav_observer.frames import euler_to_dcm, quat_to_dcm, rot_z
+from mav_observer.core import batch_fit as batch
+from mav_observer.geo.frames import euler_to_dcm, quat_to_dcm, rot_z
 from sim.tlogs import find_tlogs
 
 LOG = "ardupilot_sitl_servo_mount_roi.tlog"

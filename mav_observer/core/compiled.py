@@ -21,7 +21,7 @@ from pathlib import Path
 from types import ModuleType
 
 # LLVM's optimisation level for the kernels (numba reads it at each compile): at 1 they
-# compile a sixth faster than at numba's default 3 and run as fast (docs/performance.md); a
+# compile faster than at numba's default 3 and run as fast (docs/performance.md); a
 # NUMBA_OPT set by the user wins. Code that compiles the kernels imports this module first.
 os.environ.setdefault("NUMBA_OPT", "1")
 

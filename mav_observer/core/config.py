@@ -37,19 +37,16 @@ INTERPOLATIONS = ("linear", "hold")
 AUTO = "auto"
 #: The prior of a learnt bearing noise (deg, 1 sigma per direction). Too small a prior
 #: costs more than too large a one (the first seconds' bearings, over-weighted, bias the
-#: filters for good). Measured on the orbit, 32 runs from range guesses up to 10x off, RMS
-#: over the last 100 s against the noise told: at 2 deg a 0.5 deg prior 1.45x, 1 deg 1.05x,
-#: 2 deg 1.00x; at 0.2 deg 1.00x, 1.00x, 1.03x.
+#: filters for good; docs/estimator.md, "The noise, learnt online").
 BEARING_NOISE_PRIOR_DEG = 1.0
 #: The least bearing noise learnt (deg): a bearing in NED carries the autopilot's attitude
 #: error, rarely below 0.1 deg, whatever the sensor's own jitter. A servo mount's quantised,
-#: slowly varying pointing error learnt from its tiny sample-to-sample jitter (0.02 deg on
-#: the shared SITL log) made the filter over-confident; with the floor the median error over
-#: that log's last third is 1.07 m instead of 1.46 m.
+#: slowly varying pointing error learnt from its tiny sample-to-sample jitter would make the
+#: filter over-confident (docs/estimator.md, "The noise, learnt online").
 BEARING_NOISE_FLOOR_DEG = 0.1
-#: The prior of a learnt velocity noise (m/s per axis; :mod:`mav_observer.noise`).
+#: The prior of a learnt velocity noise (m/s per axis; :mod:`mav_observer.core.kernels.learners`).
 VELOCITY_NOISE_PRIOR_MPS = 0.05
-#: The largest bearing latency (s) told or learnt (:mod:`mav_observer.latency`).
+#: The largest bearing latency (s) told or learnt (:mod:`mav_observer.core.kernels.learners`).
 MAX_BEARING_LATENCY_S = 0.5
 #: The Huber threshold of a bearing: the 99.9 % quantile of the NIS (chi-square with
 #: ``n - 1`` degrees of freedom), by dimension of the tangent space.
@@ -93,20 +90,20 @@ class ObserverConfig:
       ``docs/tuning.md``).
     * ``bearing_latency_s`` (riccati): how long (s) the bearings trail the line of sight
       (a gimbal's tracking lag, a timestamp taken late); ``"auto"`` (default) learns it
-      online (:mod:`mav_observer.latency`), a number within +-0.5 s is used as told (0:
-      none).
+      online (:mod:`mav_observer.core.kernels.learners`), a number within +-0.5 s is used
+      as told (0: none).
     * ``hypotheses``, ``range_span`` (riccati): the filter bank's initial ranges, spread
       ``range_span`` times either way around the range guess (``initial_range_m``, else
       :data:`DEFAULT_RANGE_GUESS_M`).
     * ``mode``: ``"biased"`` (the paper's Section 3 theorem: estimates ``x`` and ``a``) or
       ``"bias_free"`` (Lemma 3.1: ``a = 0`` assumed, ``xhat = xh1``).
     * ``k_per_s``, ``k_star_per_s`` (paper): the gains k and k* (1/s). The paper used 0.5 and 5 on a
-      3 m scene; at drone scale those converge slowly or not at all, 0.2 and 0.2 is the
-      measured default.
+      3 m scene; at drone scale those converge slowly or not at all, so 0.2 and 0.2 is the
+      default (``docs/tuning.md``, "The paper's observer: gains").
     * ``interpolation``: ``"linear"`` or ``"hold"`` (see the module docstring).
     * ``max_bearing_age_s``, ``max_velocity_age_s``: beyond these a held sample is stale.
     * ``window_s``, ``window_buckets``, ``excitation_min``, ``converged_tol``: the monitor
-      (:mod:`mav_observer.monitor`).
+      (:mod:`mav_observer.core.kernels.monitor`).
     * ``xh1_0_m``, ``m_0_s``, ``zs_0_mps``: the initial state (defaults: zeros, identity,
       zeros, the paper's). ``m_0_s`` must be symmetric positive definite.
     * ``initial_range_m``: if set, the state is instead initialised at the first bearing

@@ -150,7 +150,7 @@ class BearingSample:
 
 
 class Status(StrEnum):
-    """What an estimate is worth; the rules are in :mod:`mav_observer.monitor`."""
+    """What an estimate is worth; the rules are in :mod:`mav_observer.core.kernels.monitor`."""
 
     CONVERGING = "converging"
     CONVERGED = "converged"
@@ -230,9 +230,8 @@ class Estimate(NamedTuple):
 #: is reported as a warning (replay's summary, the service's log) ...
 WARN_LAG1 = 0.5
 #: ... when the innovations are not much smaller than the noise in use: their mean square
-#: per tangent direction at least this fraction of its variance (noise-free emitter bearings
-#: leave innovations correlated but at 0.02 of the learnt noise's floor, which then covers
-#: them: no warning).
+#: per tangent direction at least this fraction of its variance (noise-free bearings leave
+#: correlated innovations far below the learnt noise's floor, which covers them: no warning).
 WARN_VAR_RATIO = 0.25
 
 

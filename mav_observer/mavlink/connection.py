@@ -8,9 +8,9 @@ instead (see :func:`is_file_source`).
 
 On a UDP input (``udpin:``, ``udp:``) without a signing key, each datagram is split into its
 frames and decoded by :class:`~mav_observer.mavlink.fastdecode.FastDecoder` (the CRC checked,
-the fields unpacked straight from pymavlink's metadata: a fifth of what pymavlink's parser and
-bookkeeping cost a message, the service's largest cost after the estimator); anything else,
-and every signed link (signatures are checked by pymavlink), goes through pymavlink.
+the fields unpacked straight from pymavlink's metadata, without the cost of pymavlink's parser
+and bookkeeping); anything else, and every signed link (signatures are checked by pymavlink),
+goes through pymavlink.
 
 The reader only listens, with one exception: on a ``udpout:`` link it sends a HEARTBEAT once a
 second, because a UDP server (an autopilot's ``udpin`` port, mavlink-router, BlueOS) only
@@ -95,11 +95,10 @@ def datagram_recv_msg(conn: Any) -> Any:
 
     pymavlink parses a UDP link as one byte stream: the tail of a damaged datagram (a frame
     cut short, a length byte that lies) stays in its buffer and swallows the start of the next
-    datagram, which may be a good frame from another sender. Measured with the fuzz mix
-    interleaved with a valid stream: half of the valid datagrams were lost that way. Here the
-    rest of a datagram that is not a whole frame is returned as one ``BAD_DATA`` ("truncated
-    frame at the end of a datagram") and the parser starts the next datagram afresh; the
-    messages of one datagram still come one per call."""
+    datagram, which may be a good frame from another sender (``docs/reliability.md``, "Fuzzed
+    frames"). Here the rest of a datagram that is not a whole frame is returned as one
+    ``BAD_DATA`` ("truncated frame at the end of a datagram") and the parser starts the next
+    datagram afresh; the messages of one datagram still come one per call."""
     mav = conn.mav
     conn.pre_message()
     msg = _next_or_tail(mav, b"") if mav.buf_len() > 0 else None

@@ -6,7 +6,7 @@ pymavlink picks its protocol version from the ``MAVLINK20`` environment variable
 pymavlink. Import pymavlink through here, never directly.
 
 Neither the dialect's module (``dialect.mavlink``) nor ``mavutil`` (the links) is imported
-before it is first used: the dialect is 2 MB of Python, a tenth of a replay's start-up, and
+before it is first used: the dialect is a large module, slow to import, and
 ``mavutil`` brings every MAVLink 1 and 2 dialect with it; reading a log needs neither. The
 message names by id, and the wire layout of the messages the tracker uses
 (:data:`TABLE_MESSAGES`), come from :mod:`~mav_observer.mavlink._dialect_table`, written from

@@ -1,7 +1,7 @@
 """Fast decoding of the few MAVLink messages replay uses.
 
 pymavlink's ``MAVLink.decode`` builds a full message object (header object, buffers, field
-dictionaries): about 5 microseconds a message. Replay needs a handful of numeric messages at
+dictionaries), dear at a message's rate. Replay needs a handful of numeric messages at
 high rates, so this module decodes those itself from pymavlink's own metadata (the wire-order
 ``unpacker``, the field ``orders`` and array ``lengths``, the ``crc_extra``), with the same
 checks: the frame length against the header, the CRC (CRC-16/MCRF4XX with the message's extra
@@ -83,7 +83,7 @@ class _Plan:
         self.fields: Any = None
         if sum(lengths) != len(lengths):
             # written out (``lambda t: (t[8], [*t[1:5]], ...)``): a generator over the
-            # fields cost a third of a decode
+            # fields is slower
             spans = [(sum(lengths[:order]), lengths[order]) for order in orders]
             terms = [f"t[{tip}]" if n == 1 else f"[*t[{tip}:{tip + n}]]" for tip, n in spans]
             self.fields = eval(f"lambda t: ({', '.join(terms)},)")

@@ -58,7 +58,7 @@ def load_key(path: str | os.PathLike[str], *, setting: str = "mavlink.signing_ke
             return bytes.fromhex(text)
         except ValueError:
             pass  # 64 characters that are not all hex: a passphrase
-    import hashlib  # (a key file's alone: a fiftieth of a replay's start-up)
+    import hashlib  # (a key file's alone: not in a replay's start-up)
 
     return hashlib.sha256(text.encode("utf-8")).digest()
 

@@ -5,9 +5,9 @@ the start, one once they have been pruned and merged), the Riccati observer that
 them and, while the bias's random walk is learnt, two probes. The maths is in
 ``docs/estimator.md``; this module is the code of it, called once per velocity interval
 (:func:`predict`) and once per bearing (:func:`update`). The Monte Carlo harness runs the
-same functions over its runs (:mod:`mav_observer.core.montecarlo`).
+same functions over its runs (`bench/accuracy/bankruns.py`).
 
-State of one run, in arrays the caller owns (:mod:`mav_observer.core.layout` makes them):
+State of one run, in arrays the caller owns (:mod:`mav_observer.core.kernels.layout` lays them out):
 
 * ``fs`` (rows, 2n): the filters' states; rows ``0 .. F-1`` the hypotheses still alive (in
   their order), row ``H`` (:func:`pilot`) the Riccati observer, ``H + 1`` and ``H + 2`` the
@@ -26,7 +26,17 @@ import math
 import numpy as np
 from numba import njit
 
-from mav_observer.core.kernels.algebra import carve, mahalanobis2, solve, spd_inverse
+from mav_observer.core.kernels.algebra import carve, mahalanobis2, solve
+from mav_observer.core.kernels.kalman import (
+    R_LOGDET,
+    R_NIS,
+    R_STAT,
+    R_WEIGHT,
+    initial_covariance,
+    mirror,
+    predict_filter,
+    update_filter,
+)
 from mav_observer.core.kernels.layout import (
     B_AGE_S,
     B_BEARINGS,
@@ -84,8 +94,6 @@ INLIER_SHARE_MIN = 0.5
 #: re-seed a consistent bank.
 NIS_MAX_WEIGHT = 0.1
 
-# scratch offsets of update_filter's results
-_R_NIS, _R_LOGDET, _R_WEIGHT, _R_STAT = 0, 1, 2, 3
 
 
 @njit(inline="always", error_model="numpy")
@@ -107,191 +115,6 @@ def noise_var(bs, bp) -> float:
 def bias_walk(bs, bp) -> float:
     """The bias's random-walk intensity in use (m^2/s^3)."""
     return bs[B_WALK_Q] if bp[P_LEARN_WALK] != 0.0 else bp[P_Q_A]
-
-
-@njit(inline="always", error_model="numpy")
-def _mirror(p) -> None:
-    d = p.shape[0]
-    for i in range(d):
-        for j in range(i + 1, d):
-            p[j, i] = p[i, j]
-
-
-@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def initial_covariance(y, range0, range_std, bias_std, sigma, p) -> None:
-    """``p`` (2n, 2n) of the state ``x = range0 y``, ``a = 0``: ``range_std`` along ``y``,
-    ``range0 * sigma`` across it, ``bias_std`` on each component of ``a``."""
-    n = y.shape[0]
-    rs2 = range_std * range_std
-    cross = (range0 * sigma) ** 2
-    p[:, :] = 0.0
-    for i in range(n):
-        for j in range(n):
-            yy = y[i] * y[j]
-            p[i, j] = rs2 * yy + cross * ((1.0 if i == j else 0.0) - yy)
-        p[n + i, n + i] = bias_std * bias_std
-
-
-@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def predict_filter(s, p, dx, h, q_x, q_a) -> None:
-    """One filter over ``h`` s: ``x += dx + h a`` (``dx`` the integral of ``v``, m), ``a``
-    unchanged, ``P = F P F^T + Q`` with ``F = [[I, h I], [0, I]]`` and per axis
-    ``Q = [[q_x h + q_a h^3/3, q_a h^2/2], [q_a h^2/2, q_a h]]``. In place."""
-    n = dx.shape[0]
-    hh = h * h
-    for i in range(n):
-        s[i] += dx[i] + h * s[n + i]
-    q0 = q_x * h + q_a * h * hh / 3.0
-    q1 = q_a * hh / 2.0
-    q2 = q_a * h
-    # the x-x block reads the old x-a and a-a blocks: it goes first, then x-a
-    for i in range(n):
-        for j in range(i, n):
-            v = p[i, j] + h * (p[i, n + j] + p[j, n + i]) + hh * p[n + i, n + j]
-            p[i, j] = v + (q0 if i == j else 0.0)
-    for i in range(n):
-        for j in range(n):
-            p[i, n + j] = p[i, n + j] + h * p[n + i, n + j] + (q1 if i == j else 0.0)
-    for i in range(n):
-        p[n + i, n + i] += q2
-    _mirror(p)
-
-
-@njit(inline="always", error_model="numpy")
-def update_filter(s, p, y, sig2, r_w, outlier_nis, wk, res) -> None:
-    """One bearing ``y`` (unit, n) applied to one filter, in place; ``res`` receives
-    ``(nis, log det S, weight, noise_stat)``.
-
-    ``r_w`` 0: the extended Kalman filter's form (``d = x/|x|``, ``H = E^T/|x|``, ``z =
-    E^T y``); ``r_w > 0``: the Riccati observer's (``d = y``, ``H = E^T / r_w``, ``z = -H
-    x``, the weight range ``r_w``). A
-    bearing whose NIS exceeds ``outlier_nis`` is applied with its variance ``sig2`` scaled
-    by ``(nis / outlier_nis)^2`` (``weight`` its inverse). ``noise_stat`` is the
-    covariance-matching statistic ``w (e^T e + tr(H P+ H^T))`` of the noise variance."""
-    if y.shape[0] == 3:  # the common case compiled with its sizes known: loops unrolled
-        _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, 3)
-    else:
-        _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, y.shape[0])
-
-
-@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, n) -> None:
-    """:func:`update_filter` in ``n`` dimensions (the scratch ``wk`` flat)."""
-    d2 = 2 * n
-    m = n - 1
-    # scratch: d (n), E (n, m), H (m, n), P H^T (2n, m), z (m), S^-1 z (m), K (2n, m);
-    # S, S^-1 and a factor (m, m) as views
-    o_d = 0
-    o_e = n
-    o_h = o_e + n * m
-    o_p = o_h + m * n
-    o_z = o_p + d2 * m
-    o_q = o_z + m
-    o_k = o_q + m
-    o_s = o_k + d2 * m
-    sm = wk[o_s : o_s + m * m].reshape((m, m))
-    sinv = wk[o_s + m * m : o_s + 2 * m * m].reshape((m, m))
-    low = wk[o_s + 2 * m * m : o_s + 3 * m * m].reshape((m, m))
-    r = 0.0
-    for i in range(n):
-        r += s[i] * s[i]
-    r = math.sqrt(r)
-    trk = r_w <= 0.0 and r > 1e-9
-    if trk:
-        for i in range(n):
-            wk[o_d + i] = s[i] / r
-        rw = r
-    else:
-        for i in range(n):
-            wk[o_d + i] = y[i]
-        rw = r_w if r_w > 0.0 else 1.0
-    # the tangent basis E: columns 1.. of the Householder reflection mapping e_0 to -sign d
-    d0 = wk[o_d]
-    u0 = d0 + (1.0 if d0 >= 0.0 else -1.0)
-    uu = u0 * u0
-    for i in range(1, n):
-        uu += wk[o_d + i] * wk[o_d + i]
-    beta = 2.0 / uu
-    for c in range(1, n):
-        dc = wk[o_d + c]
-        for i in range(n):
-            ui = u0 if i == 0 else wk[o_d + i]
-            ev = (1.0 if i == c else 0.0) - beta * ui * dc
-            wk[o_e + i * m + c - 1] = ev
-            wk[o_h + (c - 1) * n + i] = ev / rw
-    for c in range(m):
-        acc = 0.0
-        if trk:
-            for i in range(n):
-                acc += wk[o_e + i * m + c] * y[i]
-        else:
-            for i in range(n):
-                acc -= wk[o_h + c * n + i] * s[i]
-        wk[o_z + c] = acc
-    # P H^T (the rows of P's position columns), H P H^T
-    for i in range(d2):
-        for c in range(m):
-            acc = 0.0
-            for k in range(n):
-                acc += p[i, k] * wk[o_h + c * n + k]
-            wk[o_p + i * m + c] = acc
-    for a in range(m):
-        for b in range(m):
-            acc = 0.0
-            for k in range(n):
-                acc += wk[o_h + a * n + k] * wk[o_p + k * m + b]
-            sm[a, b] = acc + (sig2 if a == b else 0.0)
-    logdet = spd_inverse(sm, sinv, low)
-    nis = 0.0
-    for a in range(m):
-        acc = 0.0
-        for b in range(m):
-            acc += sinv[a, b] * wk[o_z + b]
-        wk[o_q + a] = acc
-        nis += wk[o_z + a] * acc
-    weight = 1.0
-    r_eff = sig2
-    if nis > outlier_nis:
-        weight = (outlier_nis / nis) ** 2
-        r_eff = sig2 / weight
-        for a in range(m):
-            sm[a, a] += r_eff - sig2
-        spd_inverse(sm, sinv, low)
-        for a in range(m):
-            acc = 0.0
-            for b in range(m):
-                acc += sinv[a, b] * wk[o_z + b]
-            wk[o_q + a] = acc
-    # K = P H^T S^-1; s += K z; P -= K (P H^T)^T, exactly symmetric
-    for i in range(d2):
-        for c in range(m):
-            acc = 0.0
-            for b in range(m):
-                acc += wk[o_p + i * m + b] * sinv[b, c]
-            wk[o_k + i * m + c] = acc
-    for i in range(d2):
-        acc = 0.0
-        for c in range(m):
-            acc += wk[o_k + i * m + c] * wk[o_z + c]
-        s[i] += acc
-    for i in range(d2):
-        for j in range(i, d2):
-            acc = 0.0
-            for c in range(m):
-                acc += wk[o_k + i * m + c] * wk[o_p + j * m + c]
-            v = p[i, j] - acc
-            p[i, j] = v
-            p[j, i] = v
-    tr = 0.0
-    sq = 0.0
-    for a in range(m):
-        tr += sinv[a, a]
-        sq += wk[o_q + a] * wk[o_q + a]
-    stat = r_eff * (m - r_eff * (tr - sq))
-    res[_R_NIS] = nis
-    res[_R_LOGDET] = logdet
-    res[_R_WEIGHT] = weight
-    res[_R_STAT] = weight * stat
 
 
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
@@ -532,7 +355,7 @@ def _merge(fs, fp, logw, bs, bp, wk) -> None:
         fs[kmax, a] = mean[a]
         for b in range(a, d2):
             fp[kmax, a, b] = acc[a, b] / total
-    _mirror(fp[kmax])
+    mirror(fp[kmax])
     logw[kmax] = math.log(total)
     for i in range(f):
         close[i] = 0.0 if close[i] != 0.0 else 1.0  # keep the others
@@ -584,19 +407,19 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
         update_filter(fs[i], fp[i], y, var, 0.0, g, kw, res[i])
     update_filter(fs[hp], fp[hp], y, var, bs[B_R0], g, kw, res[hp])
     probes = bp[P_LEARN_WALK] != 0.0 and bs[B_WALK_ON] > 0.0
-    robust = res[hp, _R_WEIGHT] < 1.0
+    robust = res[hp, R_WEIGHT] < 1.0
     if probes:
         update_filter(fs[hp + 1], fp[hp + 1], y, var, 0.0, g, kw, res[hp + 1])
         update_filter(fs[hp + 2], fp[hp + 2], y, var, 0.0, g, kw, res[hp + 2])
-        robust = robust or res[hp + 1, _R_WEIGHT] < 1.0 or res[hp + 2, _R_WEIGHT] < 1.0
+        robust = robust or res[hp + 1, R_WEIGHT] < 1.0 or res[hp + 2, R_WEIGHT] < 1.0
     if bp[P_LEARN_WALK] != 0.0:
         off = walk_hold and not math.isfinite(walk_hold_nats)
         if off or f != 1 or not bs[B_AGE_S] > bp[P_WALK_WARMUP_S]:
             bs[B_WALK_ON] = 0.0
         elif probes:
-            _walk_step(fs, fp, bs, bp, res[0, _R_NIS], res[0, _R_LOGDET],
-                       res[hp + 1, _R_NIS], res[hp + 1, _R_LOGDET],
-                       res[hp + 2, _R_NIS], res[hp + 2, _R_LOGDET], h,
+            _walk_step(fs, fp, bs, bp, res[0, R_NIS], res[0, R_LOGDET],
+                       res[hp + 1, R_NIS], res[hp + 1, R_LOGDET],
+                       res[hp + 2, R_NIS], res[hp + 2, R_LOGDET], h,
                        walk_hold, walk_hold_nats)  # fmt: skip
         else:  # the probes start as copies of the filter
             _start_probes(fs, fp, bs, bp)
@@ -604,16 +427,16 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
     w_prior = kw[0:f]
     stat = 0.0
     if f == 1:  # the converged run: its one filter weighs 1
-        mix_nis = min(res[0, _R_NIS], g)
-        w_run = res[0, _R_WEIGHT]
-        inlier_share = 1.0 if res[0, _R_WEIGHT] >= 1.0 else 0.0
+        mix_nis = min(res[0, R_NIS], g)
+        w_run = res[0, R_WEIGHT]
+        inlier_share = 1.0 if res[0, R_WEIGHT] >= 1.0 else 0.0
     else:
         for i in range(f):
             w_prior[i] = math.exp(logw[i])
-            robust = robust or res[i, _R_WEIGHT] < 1.0
+            robust = robust or res[i, R_WEIGHT] < 1.0
         floor = g + m * math.log(var)
         for i in range(f):
-            loss = res[i, _R_NIS] + res[i, _R_LOGDET]
+            loss = res[i, R_NIS] + res[i, R_LOGDET]
             if robust:
                 loss = min(loss, floor)
             logw[i] -= 0.5 * loss
@@ -624,9 +447,9 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
         w_run = 0.0
         inlier_share = 0.0
         for i in range(f):
-            mix_nis += w_prior[i] * min(res[i, _R_NIS], g)
-            w_run += w_prior[i] * res[i, _R_WEIGHT]
-            if res[i, _R_WEIGHT] >= 1.0:
+            mix_nis += w_prior[i] * min(res[i, R_NIS], g)
+            w_run += w_prior[i] * res[i, R_WEIGHT]
+            if res[i, R_WEIGHT] >= 1.0:
                 inlier_share += w_prior[i]
     bs[B_NIS_AVG] += min(NIS_MAX_WEIGHT, h / bp[P_NIS_WINDOW_S]) * (mix_nis - bs[B_NIS_AVG])
     bs[B_BEARINGS] += 1.0
@@ -637,13 +460,13 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
         bs[B_INLIER_AVG] += beta_ * (inlier_share - bs[B_INLIER_AVG])
         all_in = bs[B_INLIER_AVG] >= INLIER_SHARE_MIN
         if f == 1:
-            stat = res[0, _R_STAT]
-            if res[0, _R_WEIGHT] < 1.0 and all_in:
+            stat = res[0, R_STAT]
+            if res[0, R_WEIGHT] < 1.0 and all_in:
                 stat = m * var
         else:
             for i in range(f):
-                use = res[i, _R_WEIGHT] >= 1.0 or not all_in
-                stat += w_prior[i] * (res[i, _R_STAT] if use else m * var)
+                use = res[i, R_WEIGHT] >= 1.0 or not all_in
+                stat += w_prior[i] * (res[i, R_STAT] if use else m * var)
         stat = min(stat, NOISE_CLIP * m * var)
         rho = math.exp(-max(h, 0.0) / bp[P_NOISE_MEMORY_S])
         bs[B_NOISE_ALPHA] = rho * bs[B_NOISE_ALPHA] + 0.5 * m
@@ -704,7 +527,7 @@ def estimate(fs, fp, logw, bs, bp, s_out, p_out, wk) -> None:
     else:
         for k in range(f):
             _spread_add(p_out, fp[k], math.exp(logw[k]), fs[k], s_out, diff)
-    _mirror(p_out)
+    mirror(p_out)
 
 
 @njit(inline="always", error_model="numpy")
@@ -716,26 +539,6 @@ def _spread_add(acc, p, w, s, mean, diff) -> None:
     for a in range(d2):
         for b in range(a, d2):
             acc[a, b] += w * p[a, b] + w * diff[a] * diff[b]
-
-
-@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def position_update(x, pxx, y, sig2, outlier_nis, wk) -> None:
-    """A bearing ``y`` applied to a predicted position ``x`` (n) of covariance ``pxx``
-    (n, n) alone, tracking form, in place: for an estimate published beyond the committed
-    state (the bearing is applied to the state once the velocity around it is known)."""
-    n = x.shape[0]
-    d2 = 2 * n
-    s = wk[0:d2]
-    p = wk[d2 : d2 + d2 * d2].reshape((d2, d2))
-    res = wk[d2 + d2 * d2 : d2 + d2 * d2 + 4]
-    kw = wk[d2 + d2 * d2 + 4 :]
-    s[:] = 0.0
-    p[:, :] = 0.0
-    s[:n] = x
-    p[:n, :n] = pxx
-    update_filter(s, p, y, sig2, 0.0, outlier_nis, kw, res)
-    x[:] = s[:n]
-    pxx[:, :] = p[:n, :n]
 
 
 def new_arrays(n: int, hypotheses: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

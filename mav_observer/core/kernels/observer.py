@@ -18,7 +18,7 @@ import math
 
 from numba import njit
 
-from mav_observer.core.kernels import bank, estimator, monitor, streams
+from mav_observer.core.kernels import estimator, kalman, monitor, streams
 from mav_observer.core.kernels.algebra import carve
 from mav_observer.core.kernels.layout import (
     A_BBUF,
@@ -223,8 +223,8 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
             nb = int(q[Q_NB])
             if bbuf[nb - 1, 0] == t:
                 bp = cfg[O_BANK : O_BANK + P_COUNT]
-                bank.position_update(xh, pxx, bbuf[nb - 1, 1:], estimator.noise_var(cfg, s),
-                                     bp[P_OUTLIER_NIS], wk2)  # fmt: skip
+                kalman.position_update(xh, pxx, bbuf[nb - 1, 1:], estimator.noise_var(cfg, s),
+                                       bp[P_OUTLIER_NIS], wk2)  # fmt: skip
             predicted_cov = True
     rng = 0.0
     for j in range(n):
