@@ -26,6 +26,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
+from mav_observer.core import compiled
 from mav_observer.outputs import zenoh_io
 from sim import emitter, scenarios
 
@@ -151,6 +152,9 @@ def main(args: argparse.Namespace) -> int:
         f"{args.bearing_noise_deg:g} deg, {args.speed:g}x real time -> udp 127.0.0.1:{mav_port}; "
         f"service -> zenoh tcp/127.0.0.1:{z_port}, key mav_observer/{cfg.sysid}/{target}/estimate"
     )
+    # the estimator compiled (a machine's first run) or loaded here first, so that the service
+    # starts on numba's cache instead of compiling while the scenario already plays
+    compiled.kernels()
     extra = ["--log-level", args.service_log_level, "--estimate-rate-hz", "0"]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     svc = subprocess.Popen(service_command(mav_port, z_port, *extra), env=env)
