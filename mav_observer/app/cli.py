@@ -335,6 +335,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(settings.to_toml(), end="")
         return 0
     logging.getLogger().setLevel(settings["log"]["level"])
+    # the estimator loaded (compiled on a machine's first run) before the service shows itself
+    # on Zenoh or binds its MAVLink port: nothing waits on it once it is there
+    from mav_observer.core import compiled
+
+    compiled.kernels()
     z = settings["zenoh"]
     conf = zenoh_io.session_config(
         config_file=z["config_file"], mode=z["mode"], listen=z["listen"], connect=z["connect"]
