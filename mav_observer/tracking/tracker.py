@@ -8,11 +8,13 @@ latest position and velocity and its cameras' fields of view, turns bearing mess
 :class:`~mav_observer.outputs.records.EstimateRecord` for each bearing the observers accept.
 A message that cannot be used is counted by reason and skipped; nothing already received is lost.
 
-Roles: this module turns messages into samples, per vehicle; the vehicle's attitude over time
-is :mod:`~mav_observer.tracking.attitude`'s; the observers of a vehicle's targets, and how they
-are saved and resumed, are :mod:`~mav_observer.core.targets`'. Replay and the service run the same
-loop body, :meth:`Tracker.handle` (``(t, message) -> records``), and read it through its
-public methods.
+Roles: this module routes each message to its handler and publishes the records; the
+bearing sources' readers are :mod:`~mav_observer.tracking.bearings`', the per-vehicle state
+and clocks :mod:`~mav_observer.tracking.vehicle`'s, the origin
+:mod:`~mav_observer.tracking.origin`'s, the velocity's drift and the published bias
+:mod:`~mav_observer.core.drift`'s, the observers of a vehicle's targets
+:mod:`~mav_observer.core.targets`'. Replay and the service run the same loop body,
+:meth:`Tracker.handle` (``(t, message) -> records``), and read it through its public methods.
 
 Targets and the messages that feed them (``sources``):
 
