@@ -154,7 +154,8 @@ def bank_call(
                 bank.predict(fs[r], fp[r], bs[r], bp, dx[r], h, q_x)
             if op != 1:
                 bank.update(
-                    fs[r], fp[r], logw[r], bs[r], bp, y[r], h, walk_hold, walk_hold_nats, wk[r]
+                    fs[r], fp[r], logw[r], bs[r], bp, y[r], h, walk_hold, walk_hold_nats, 0.0,
+                    wk[r],
                 )
         elif op == 4:
             bank.estimate(fs[r], fp[r], logw[r], bs[r], bp, st[r], p[r], wk[r])
@@ -457,7 +458,7 @@ def streams_call(
     elif op == 6:
         return float(streams.breakpoints(q, vbuf, bbuf, t, t1, min_interval, mba, out))
     elif op == 7:
-        return streams.horizon(q, vbuf, bbuf, mba, mva, max_buffer)
+        return streams.horizon(q, vbuf, bbuf, mba, mva, max_buffer, t)
     elif op == 8:
         return 1.0 if streams.can_wait(q, vbuf, bbuf, mba, max_buffer) else 0.0
     elif op == 9:
@@ -537,8 +538,9 @@ class Streams:
         k = int(self._call(S_BREAKPOINTS, t0, t1, out=out, min_interval=min_interval_s))
         return out[:k].tolist()
 
-    def horizon(self) -> float:
-        return self._call(S_HORIZON)
+    def horizon(self, t_committed_s: float = 0.0) -> float:
+        """(``max_velocity_age_s`` stands for the observer's ``max_velocity_wait_s``.)"""
+        return self._call(S_HORIZON, t_committed_s)
 
     def can_wait(self) -> bool:
         return bool(self._call(S_CAN_WAIT))

@@ -66,7 +66,7 @@ def _start(fs, fp, logw, bs, bp, y0, r0):  # pragma: no cover - compiled
 def _step(fs, fp, logw, bs, bp, wk, dx, h, y, q_x):  # pragma: no cover - compiled
     for r in prange(fs.shape[0]):
         bank.predict(fs[r], fp[r], bs[r], bp, dx[r], h, q_x)
-        bank.update(fs[r], fp[r], logw[r], bs[r], bp, y[r], h, False, 60.0, wk[r])
+        bank.update(fs[r], fp[r], logw[r], bs[r], bp, y[r], h, False, 60.0, 0.0, wk[r])
 
 
 @njit(cache=True, parallel=True)

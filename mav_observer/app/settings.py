@@ -60,6 +60,7 @@ OBSERVER_HELP = {
     "interpolation": "linear or hold",
     "max_bearing_age_s": "no correction past this (s)",
     "max_velocity_age_s": "a velocity older than this: stale (s)",
+    "max_velocity_wait_s": "bearings wait this long for the velocity after a gap (s)",
     "window_s": "excitation window (s)",
     "window_buckets": "buckets of the excitation window",
     "excitation_min": "below: not observable",

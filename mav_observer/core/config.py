@@ -102,6 +102,9 @@ class ObserverConfig:
       default (``docs/tuning.md``, "The paper's observer: gains").
     * ``interpolation``: ``"linear"`` or ``"hold"`` (see the module docstring).
     * ``max_bearing_age_s``, ``max_velocity_age_s``: beyond these a held sample is stale.
+    * ``max_velocity_wait_s``: how long bearings wait for the velocity after them before the
+      estimate moves on with the velocity held (its covariance growing with the gap): across a
+      telemetry gap shorter than this the positions after the gap give its displacement.
     * ``window_s``, ``window_buckets``, ``excitation_min``, ``converged_tol``: the monitor
       (:mod:`mav_observer.core.kernels.monitor`).
     * ``xh1_0_m``, ``m_0_s``, ``zs_0_mps``: the initial state (defaults: zeros, identity,
@@ -131,6 +134,7 @@ class ObserverConfig:
     interpolation: str = "linear"
     max_bearing_age_s: float = 2.0
     max_velocity_age_s: float = 2.0
+    max_velocity_wait_s: float = 30.0
     window_s: float = 20.0
     window_buckets: int = 20
     excitation_min: float = 0.01
@@ -188,7 +192,8 @@ class ObserverConfig:
             raise ConfigError(
                 f"interpolation must be one of {INTERPOLATIONS}, got {self.interpolation!r}"
             )
-        for name in ("k_per_s", "k_star_per_s", "max_bearing_age_s", "max_velocity_age_s"):
+        for name in ("k_per_s", "k_star_per_s", "max_bearing_age_s", "max_velocity_age_s",
+                     "max_velocity_wait_s"):
             object.__setattr__(self, name, _positive(name, getattr(self, name)))
         object.__setattr__(self, "window_s", _positive("window_s", self.window_s))
         object.__setattr__(

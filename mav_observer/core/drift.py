@@ -23,8 +23,13 @@ from mav_observer.core.samples import Estimate
 if TYPE_CHECKING:
     from mav_observer.core.observer import BiasObserver
 
-#: Two positions closer than this (s) give the displacement between them, at any rate.
-SPARSE_VELOCITY_MAX_S = 5.0
+#: Two positions closer than this (s) give the displacement between them, at any rate: across
+#: a telemetry gap of any length the position's change is the displacement, where the
+#: velocity interpolated over the gap would miss every turn made in it.
+SPARSE_VELOCITY_MAX_S = math.inf
+#: An interval longer than this (s) teaches neither the drift nor the reset test: over a gap,
+#: the velocity's trapezoid is off the positions by the turns made in it, not by the drift.
+DRIFT_INTERVAL_MAX_S = 5.0
 #: The mean drift is learnt over this much (s) of intervals, then kept: a drift that went on
 #: following the velocity's slow wander would hand the estimator a varying ``a``, which its
 #: model does not have (``docs/frames.md``).
@@ -66,15 +71,19 @@ class PositionDrift:
         """One interval between two position and velocity fixes (NED; the autopilot's
         velocity ``u``): ``(mean, reset)``. ``mean`` is the paper's ``v = -u`` averaged over
         the interval, from the position's change less the learnt drift, or ``None`` (no
-        usable interval: too long, or a position jump). ``reset`` is true for a jump: more
-        than ``0.5 m + 5 m/s^2 dt^2`` off the velocity's trapezoid, drift removed, and as much
-        off the previous interval's deviation (a step, not a velocity that disagrees with the
-        position for seconds)."""
+        usable interval: a position jump); an interval longer than
+        :data:`DRIFT_INTERVAL_MAX_S` (a telemetry gap) gives its mean and teaches nothing.
+        ``reset`` is true for a jump: more than ``0.5 m + 5 m/s^2 dt^2`` off the velocity's
+        trapezoid, drift removed, and as much off the previous interval's deviation (a step,
+        not a velocity that disagrees with the position for seconds)."""
         dt = t_s - t0_s
         if not 0.0 < dt <= SPARSE_VELOCITY_MAX_S:
             self.deviation_mps = None
             return None, False
         drift, seen_s = self.learnt_mps, self.learnt_over_s
+        if dt > DRIFT_INTERVAL_MAX_S:
+            self.deviation_mps = None
+            return [-((p_m[j] - p0_m[j]) / dt - drift[j]) for j in range(3)], False
         resid = [(p_m[j] - p0_m[j]) - 0.5 * (u0_mps[j] + u_mps[j]) * dt for j in range(3)]
         dev = [resid[j] / dt - drift[j] for j in range(3)]
         before = self.deviation_mps or [0.0, 0.0, 0.0]

@@ -58,6 +58,7 @@ def config_array(config: ObserverConfig, committed: bool) -> np.ndarray:
     cfg[L.O_LINEAR] = c.interpolation == "linear"
     cfg[L.O_MAX_BEARING_AGE_S] = c.max_bearing_age_s
     cfg[L.O_MAX_VELOCITY_AGE_S] = c.max_velocity_age_s
+    cfg[L.O_MAX_VELOCITY_WAIT_S] = c.max_velocity_wait_s
     cfg[L.O_MAX_BUFFER] = c.max_buffer
     cfg[L.O_WINDOW_S] = c.window_s
     cfg[L.O_BUCKET_S] = c.window_s / c.window_buckets

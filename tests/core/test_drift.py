@@ -37,10 +37,15 @@ def test_the_mean_velocity_is_the_position_change_less_the_learnt_drift() -> Non
         np.testing.assert_allclose(mean, [-2.5, 0.0, 0.0], atol=1e-12)
 
 
-def test_an_interval_longer_than_the_limit_gives_no_mean() -> None:
+def test_a_telemetry_gap_gives_the_position_change_and_teaches_nothing() -> None:
+    # a 30 s gap in which the vehicle turned: the velocity at its two ends says 1 m/s north,
+    # the positions 20 m east; the mean is the positions', and the drift stays unlearnt
     d = PositionDrift()
-    gap = drift.SPARSE_VELOCITY_MAX_S + 1.0
-    assert d.interval(0.0, [0, 0, 0], [1, 0, 0], gap, [gap, 0, 0], [1, 0, 0]) == (None, False)
+    gap = drift.DRIFT_INTERVAL_MAX_S + 25.0
+    mean, reset = d.interval(0.0, [0, 0, 0], [1, 0, 0], gap, [0, 20.0, 0], [1, 0, 0])
+    assert not reset
+    np.testing.assert_allclose(mean, [0.0, -20.0 / gap, 0.0])
+    assert d.learnt_over_s == 0.0 and d.correction_mps is None
 
 
 def test_a_position_step_is_a_reset_and_a_steady_disagreement_is_not() -> None:

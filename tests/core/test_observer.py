@@ -562,7 +562,10 @@ def test_not_started_until_both_streams_arrive_and_buffers_stay_bounded() -> Non
     assert obs.buffered["bearing"] == 1
     obs.update_velocity(VelocitySample(10.0, [0.0, 0.0, 0.0]))
     assert obs.started
-    for i in range(1000):  # bearings only: the velocity goes stale and the horizon follows
+    for i in range(15):  # bearings only: they wait for the velocity until a buffer is full
+        obs.update_bearing(BearingSample(10.0 + 0.01 * i, [0.0, 0.0, 1.0]))
+    assert obs.committed_t_s == 10.0
+    for i in range(15, 1000):  # then the velocity is stale and the horizon follows them
         obs.update_bearing(BearingSample(10.0 + 0.01 * i, [0.0, 0.0, 1.0]))
     assert obs.buffered["bearing"] <= 17
     assert obs.committed_t_s == pytest.approx(19.99)

@@ -387,13 +387,27 @@ def reseed(fs, fp, logw, bs, bp, y) -> None:
         bs[B_NOISE_ALPHA] = alpha0
 
 
+@njit(inline="always", error_model="numpy")
+def _with_shape(var, shape_m2, s, n) -> float:
+    """The bearing noise (rad^2) plus a position variance ``shape_m2`` (m^2) seen from the
+    filter's range (at least 1 m)."""
+    if shape_m2 == 0.0:
+        return var
+    r2 = 0.0
+    for j in range(n):
+        r2 += s[j] * s[j]
+    return var + shape_m2 / max(r2, 1.0)
+
+
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
+def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, shape_m2, wk) -> None:
     """The bearing ``y`` (unit), ``h`` s after the previous one, applied to the run: every
     hypothesis in tracking form, weights by likelihood, the Riccati observer in acquisition
     form, the probes; then the walk, the noise learnt, prune, merge, and a re-seeding when
     the innovations stay inconsistent. ``walk_hold`` / ``walk_hold_nats``: the walk held
-    while the bearings' latency is being learnt (``inf``: no probe runs)."""
+    while the bearings' latency is being learnt (``inf``: no probe runs). ``shape_m2``: the
+    variance (m^2 per axis) of the vehicle's position at this bearing inside a telemetry gap,
+    added to each filter's bearing noise at its range (such a bearing teaches no noise)."""
     n = y.shape[0]
     m = n - 1
     g = bp[P_OUTLIER_NIS]
@@ -404,13 +418,15 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
     res = wk[0 : 4 * (hyp + 3)].reshape((hyp + 3, 4))
     kw = wk[4 * (hyp + 3) :]
     for i in range(f):
-        update_filter(fs[i], fp[i], y, var, 0.0, g, kw, res[i])
-    update_filter(fs[hp], fp[hp], y, var, bs[B_R0], g, kw, res[hp])
+        update_filter(fs[i], fp[i], y, _with_shape(var, shape_m2, fs[i], n), 0.0, g, kw, res[i])
+    update_filter(fs[hp], fp[hp], y, _with_shape(var, shape_m2, fs[hp], n), bs[B_R0], g, kw,
+                  res[hp])  # fmt: skip
     probes = bp[P_LEARN_WALK] != 0.0 and bs[B_WALK_ON] > 0.0
     robust = res[hp, R_WEIGHT] < 1.0
     if probes:
-        update_filter(fs[hp + 1], fp[hp + 1], y, var, 0.0, g, kw, res[hp + 1])
-        update_filter(fs[hp + 2], fp[hp + 2], y, var, 0.0, g, kw, res[hp + 2])
+        for k in (hp + 1, hp + 2):
+            update_filter(fs[k], fp[k], y, _with_shape(var, shape_m2, fs[k], n), 0.0, g, kw,
+                          res[k])  # fmt: skip
         robust = robust or res[hp + 1, R_WEIGHT] < 1.0 or res[hp + 2, R_WEIGHT] < 1.0
     if bp[P_LEARN_WALK] != 0.0:
         off = walk_hold and not math.isfinite(walk_hold_nats)
@@ -455,7 +471,7 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, wk) -> None:
     bs[B_BEARINGS] += 1.0
     if w_run < 0.5:
         bs[B_OUTLIERS] += 1.0
-    if bp[P_LEARN_NOISE] != 0.0:
+    if bp[P_LEARN_NOISE] != 0.0 and shape_m2 == 0.0:
         beta_ = min(1.0, max(h, 0.0) / bp[P_NIS_WINDOW_S])
         bs[B_INLIER_AVG] += beta_ * (inlier_share - bs[B_INLIER_AVG])
         all_in = bs[B_INLIER_AVG] >= INLIER_SHARE_MIN

@@ -162,6 +162,8 @@ def predict(cfg, s, vec, fs, fp, vbuf, t, h, v, y, has_y, a_ref, moved, wk) -> N
         q_x = velocity_noise_mps(cfg, s) ** 2 * q[Q_VDT]
         if streams.chord_at(q, vbuf, t):
             q_x = min(q_x, CHORD_NOISE_MPS**2 * q[Q_VDT])
+        if h > 0.0:  # past the latest velocity (a gap): the held velocity's error
+            q_x += streams.held_var_increment(q, vbuf, t, h) / h
         dx = wk[0:n]
         for i in range(n):
             dx[i] = v[i] * h
@@ -365,5 +367,7 @@ def update(cfg, s, vec, fs, fp, vbuf, t, y, wk) -> None:
             learners.whiteness_add(wh, vec[R_WH_PREV], t, z)
     else:
         wh[W_HAS_PREV] = 0.0
-    bank.update(fs, fp, _logw(cfg, s), bs, bp, y_use, gap, hold, hold_nats, wk)
+    q = s[OFF_Q : OFF_Q + Q_COUNT]
+    shape = streams.shape_var(q, vbuf, t, cfg[O_MAX_VELOCITY_AGE_S])
+    bank.update(fs, fp, _logw(cfg, s), bs, bp, y_use, gap, hold, hold_nats, shape, wk)
     s[S_T_BEARING] = t

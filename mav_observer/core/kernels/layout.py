@@ -49,6 +49,7 @@ O_MAX_LATENCY_S = 23
 O_VELOCITY_NOISE_PRIOR_MPS = 24
 O_WK_EST = 25  # where the estimator's scratch starts in wk (after the bank's)
 O_WK_OBS = 26  # where the observer step's starts
+O_MAX_VELOCITY_WAIT_S = 27
 O_ARRAYS = 32  # then, per array A_* of the state, its offset in the buffer and 3 dimensions
 O_BANK = 80
 

@@ -60,6 +60,7 @@ from mav_observer.core.kernels.layout import (
     O_MAX_BEARING_AGE_S,
     O_MAX_BUFFER,
     O_MAX_VELOCITY_AGE_S,
+    O_MAX_VELOCITY_WAIT_S,
     O_MIN_INTERVAL_S,
     O_N,
     O_WINDOW_FULL_S,
@@ -359,7 +360,7 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
     t_c = s[S_T_C]
     started = not math.isnan(t_c)
     live = (op == OP_PREDICT) | (op == OP_BEARING_LIVE)
-    mba, mva, cap = cfg[O_MAX_BEARING_AGE_S], cfg[O_MAX_VELOCITY_AGE_S], int(cfg[O_MAX_BUFFER])
+    mba, cap = cfg[O_MAX_BEARING_AGE_S], int(cfg[O_MAX_BUFFER])
     nv, nb = int(q[Q_NV]), int(q[Q_NB])
     if op == OP_RESUME:
         estimator.shift(cfg, vec, fs, u)
@@ -379,6 +380,8 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
         if int(q[Q_NV]) >= vbuf.shape[0] - 1:
             return ERR_BUFFER_FULL
         streams.append_velocity(q, vbuf, t, u)
+        if has_w:  # before any commit: the interval just closed is integrated with its mean
+            streams.set_interval_mean(q, vbuf, t, w)
     elif (op == OP_BEARING) | (op == OP_BEARING_LIVE):
         if nb > 0 and t < bbuf[nb - 1, 0]:
             return ERR_BEARING_BACKWARDS
@@ -410,7 +413,8 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
         if op == OP_COMMIT_PENDING:
             horizon = bbuf[nb - 1, 0] if nb > 0 else s[S_T_C]
         else:
-            horizon = streams.horizon(q, vbuf, bbuf, mba, mva, cap)
+            horizon = streams.horizon(q, vbuf, bbuf, mba, cfg[O_MAX_VELOCITY_WAIT_S], cap,
+                                      s[S_T_C])  # fmt: skip
         if horizon > s[S_T_C]:
             # stop at each bearing's time (each once) when its estimate is kept
             last = s[S_T_C]
@@ -427,8 +431,6 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
     if op == OP_VELOCITY:
         s[S_N_VELOCITY] += 1.0
         estimator.observe_velocity(cfg, s, vec, t, u)
-        if has_w:
-            streams.set_interval_mean(q, vbuf, t, w)
     elif (op == OP_BEARING) | (op == OP_BEARING_LIVE):
         s[S_N_BEARING] += 1.0
     elif op == OP_PREDICT and started and t < s[S_T_C]:  # the data already reaches past t

@@ -41,6 +41,9 @@ EXTRAPOLATION_MEMORY_S = 60.0
 #: A velocity interval at least this long (s) whose mean is known from the positions is a
 #: sparse stream's: a prediction past its latest sample continues its trend.
 SPARSE_INTERVAL_S = 0.2
+#: The least drift rate (m/s^2) of a velocity held across a telemetry gap: a vehicle may turn
+#: or brake in a gap however steady it was before, and the covariance must say so.
+GAP_ACCEL_MPS2 = 1.0
 
 
 @njit(inline="always", error_model="numpy")
@@ -167,6 +170,43 @@ def extrapolation_var(q, vbuf, t) -> float:
 
 
 @njit(inline="always", error_model="numpy")
+def held_var_increment(q, vbuf, t, h) -> float:
+    """The variance (m^2 per axis) that the velocity held past its latest sample (a telemetry
+    gap) adds to the displacement over the step of ``h`` s centred on ``t``: it grows as
+    ``(alpha s^2 / 2)^2`` after ``s``, ``alpha`` the stream's extrapolation error learnt, at
+    least :data:`GAP_ACCEL_MPS2`; 0 for a step before the latest sample."""
+    nv = int(q[Q_NV])
+    if nv == 0:
+        return 0.0
+    tv = vbuf[nv - 1, VB_T]
+    s1 = t + 0.5 * h - tv
+    if s1 <= 0.0:
+        return 0.0
+    s0 = max(t - 0.5 * h - tv, 0.0)
+    alpha = max(extrapolation_mps2(q), GAP_ACCEL_MPS2)
+    return 0.25 * alpha * alpha * (s1**4 - s0**4)
+
+
+@njit(inline="always", error_model="numpy")
+def shape_var(q, vbuf, t, gap_s) -> float:
+    """The variance (m^2 per axis) of the displacement at ``t`` inside a velocity interval
+    longer than ``gap_s`` (a telemetry gap) whose mean is known from the positions: exact at
+    both ends, the samples' shape in between may miss a turn by ``alpha s (T - s) / 2``
+    (``alpha`` as :func:`held_var_increment`'s); 0 elsewhere."""
+    nv = int(q[Q_NV])
+    for i in range(1, nv):
+        tq = vbuf[i, VB_T]
+        if tq > t:
+            tp = vbuf[i - 1, VB_T]
+            if t <= tp or tq - tp <= gap_s or vbuf[i, VB_HAS_MEAN] == 0.0:
+                return 0.0
+            alpha = max(extrapolation_mps2(q), GAP_ACCEL_MPS2)
+            e = 0.5 * alpha * (t - tp) * (tq - t)
+            return e * e
+    return 0.0
+
+
+@njit(inline="always", error_model="numpy")
 def keep_latest(q, vbuf, bbuf) -> None:
     """Before the start only the latest sample of each stream matters."""
     nv, nb = int(q[Q_NV]), int(q[Q_NB])
@@ -234,15 +274,26 @@ def restart_velocity(q, vbuf, bbuf, t, v) -> None:
 
 
 @njit(inline="always", error_model="numpy")
-def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_age_s, max_buffer) -> float:
+def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_wait_s, max_buffer, t_c) -> float:
     """The latest time both streams determine: the earlier stream's latest sample, unless
-    the other has gone stale or a buffer is full."""
+    the other has gone stale (the velocity: ``max_velocity_wait_s`` behind the bearings, or
+    the committed time ``t_c`` already past it) or a buffer is full."""
     nv, nb = int(q[Q_NV]), int(q[Q_NB])
     tb = bbuf[nb - 1, 0]
     tv = vbuf[nv - 1, VB_T]
+    # the bearings past the latest velocity have waited since the first of them after the
+    # latest gap in the bearings too (after a gap in both streams, the first bearing back
+    # waits for the velocity back)
+    first = math.nan
+    for i in range(nb):
+        ti = bbuf[i, 0]
+        if ti > tv and (math.isnan(first) or ti - bbuf[i - 1, 0] > max_bearing_age_s):
+            first = ti
+    if math.isnan(first):
+        first = tb
     if tv > tb + max_bearing_age_s:
         h = tv  # bearing stale: no future bearing can correct this stretch
-    elif tb > tv + max_velocity_age_s:
+    elif tb > first + max_velocity_wait_s or t_c > tv:
         h = tb  # velocity stale: hold it
     else:
         h = min(tb, tv)

@@ -39,7 +39,7 @@ def test_a_bearing_older_than_the_committed_time_is_refused_a_velocity_is_not() 
     with pytest.raises(InvalidSampleError, match="older than the observer's committed time"):
         obs.add_bearing_values(1.0, [1.0, 0.0, 0.0])
     assert obs.counts == {"velocity": 4, "bearing": 1}
-    late = BiasObserver()
+    late = BiasObserver(ObserverConfig(max_velocity_wait_s=1.5))
     late.update_velocity_values(0.0, [0.0, 0.0, 0.0])
     for t in (0.0, 1.0, 2.0, 3.0):
         late.update_bearing_values(t, [1.0, 0.0, 0.0])
@@ -185,10 +185,20 @@ def test_the_horizon_is_the_earlier_stream_unless_the_other_is_stale_or_full() -
     for k in range(5):
         t.append_velocity(0.1 * k, [0.0, 0.0, 0.0])
     assert t.horizon() == pytest.approx(0.4)  # the buffer is full: no more waiting
-    u = kc.Streams()
+    u = kc.Streams()  # (a velocity wait of 2 s)
     u.append_velocity(0.0, [0.0, 0.0, 0.0])
     u.append_bearing(3.0, [1.0, 0.0, 0.0])
-    assert u.horizon() == 3.0  # the velocity is stale: held
+    assert u.horizon() == 0.0  # the first bearing after a gap in both waits for the velocity
+    for k in range(1, 6):
+        u.append_bearing(3.0 + 0.5 * k, [1.0, 0.0, 0.0])
+    assert u.horizon() == 5.5  # bearings for more than 2 s: the velocity is stale, held
+    assert u.horizon(t_committed_s=0.5) == 5.5  # and once past it, the horizon follows
+    w = kc.Streams()
+    w.append_velocity(0.0, [0.0, 0.0, 0.0])
+    w.append_bearing(0.5, [1.0, 0.0, 0.0])
+    w.append_bearing(4.0, [1.0, 0.0, 0.0])  # (a gap in the bearings too)
+    w.append_bearing(5.5, [1.0, 0.0, 0.0])
+    assert w.horizon() == 0.0  # waiting since 4.0 s only
 
 
 @settings(max_examples=60, deadline=None)
