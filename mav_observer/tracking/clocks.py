@@ -31,7 +31,12 @@ Policy (``docs/frames.md``, "Time"):
   time since the previous message (``max_rate`` 100 leaves room for simulators run faster than
   real time); a message further ahead (a clock that jumps by hours, a corrupted field) is
   refused as ``time_jump``. If such messages are confirmed as above (the first message seen
-  was the stray one), the mapping restarts from them (``clock_jump``).
+  was the stray one, or a telemetry gap of a simulator run faster than real time whose
+  recorder stalled: its stamps bunch while its clock went on), the mapping restarts from
+  them (``clock_jump``, the step in ``jump_s``); a forward step of up to ``gap_max_s`` is a
+  telemetry gap to the caller, not a new clock. A forward candidate is confirmed by
+  ``confirm_count`` messages spanning ``confirm_s`` of arrival time *or of its own clock*
+  (a recorder's bursts stamp many messages alike).
 """
 
 from __future__ import annotations
@@ -53,10 +58,15 @@ class ClockMap:
     confirm_s: float = 0.5
     jump_ahead_s: float = 10.0
     max_rate: float = 100.0
+    #: a confirmed forward step up to this (s) is a telemetry gap, not another clock
+    gap_max_s: float = 600.0
+    #: the step (s) of the latest ``reboot`` (negative) or ``clock_jump``
+    jump_s: float = 0.0
     offset_s: float | None = None
     last_boot_s: float | None = None
     last_arrival_s: float | None = None
-    #: candidate new clocks: [first arrival, count, last boot, last arrival, min arrival - boot]
+    #: candidate new clocks: [first arrival, count, last boot, last arrival, min arrival - boot,
+    #: first boot]
     pending: list[list[float]] = field(default_factory=list)
     #: most candidate clocks tracked at once (stray messages each start one)
     max_candidates: int = 8
@@ -78,6 +88,7 @@ class ClockMap:
                 if group is None:
                     return "clock_unconfirmed" if back > 0.0 else "time_jump"
                 self.offset_s = group[4]
+                self.jump_s = group[5] - self.last_boot_s
                 self.last_boot_s, self.last_arrival_s = group[2], group[3]
                 self.pending = []
                 return "reboot" if back > 0.0 else "clock_jump"
@@ -110,13 +121,14 @@ class ClockMap:
         time, by no more than :meth:`_advance_max`), or start a new one; return that
         candidate once ``confirm_count`` messages of it span ``confirm_s`` of arrival time."""
         for group in self.pending:
-            first_a, count, b0, a0, low = group
+            first_a, count, b0, a0, low, first_b = group
             if b0 < boot_s <= b0 + self._advance_max(arrival_s - a0):
-                group[1:] = [count + 1, boot_s, arrival_s, min(low, arrival_s - boot_s)]
-                if group[1] >= self.confirm_count and arrival_s - first_a >= self.confirm_s:
+                group[1:5] = [count + 1, boot_s, arrival_s, min(low, arrival_s - boot_s)]
+                span = max(arrival_s - first_a, boot_s - first_b if boot_s > first_b else 0.0)
+                if group[1] >= self.confirm_count and span >= self.confirm_s:
                     return group
                 return None
-        self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s])
+        self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s, boot_s])
         if len(self.pending) > self.max_candidates:
             self.pending.sort(key=lambda g: g[1])  # forget the least supported candidate
             del self.pending[0]

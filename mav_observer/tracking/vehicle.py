@@ -126,6 +126,11 @@ note: Callable[[Vehicle, str], None], reboot: Callable[[Vehicle, str], None],
     if event in ("out_of_order", "clock_unconfirmed", "time_jump"):
         raise Skip(event, f"clock {key}: time_boot_ms {boot_s:.3f} s refused ({event})")
     is_autopilot = key == veh.autopilot_compid
+    if event == "clock_jump" and 0.0 < clock.jump_s <= clock.gap_max_s:
+        # the same clock after a telemetry gap (a sped-up simulator's recorder stalled): the
+        # observers predict across it
+        note(veh, f"clock_gap_{key}" if not is_autopilot else "autopilot_clock_gap")
+        event = None
     if event in ("reboot", "clock_jump"):
         if is_autopilot:
             reboot(veh, event)

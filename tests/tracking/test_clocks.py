@@ -78,3 +78,18 @@ def test_another_streams_slightly_older_stamp_is_in_order() -> None:
     assert c.update(499.990, 1499.995) is None  # a lower arrival - boot lowers the offset
     assert c.offset_s == pytest.approx(1000.005)
     assert c.update(499.7, 1500.02) == "out_of_order"  # 0.3 s back: refused
+
+
+def test_a_sped_up_clock_across_a_recorder_stall_is_one_clock_with_a_gap() -> None:
+    """A simulator at 4x: the boot clock runs 4 s per arrival second; the recorder stalls and
+    loses 16 s of the clock while its stamps do not advance (they bunch a few ms apart). The
+    first messages after the stall are refused until 5 of them span 0.5 s of their own clock,
+    then the clock goes on with ``jump_s`` the gap: the caller's telemetry gap, not a reboot."""
+    c = ClockMap()
+    for i in range(200):  # 20 s of boot, 5 s of arrival: no event
+        assert c.update(100.0 + 0.1 * i, 1000.0 + 0.025 * i) is None
+    events = [c.update(136.0 + 0.1 * i, 1004.98 + 0.001 * i) for i in range(10)]
+    assert events[:5] == ["time_jump"] * 5 and events[5] == "clock_jump"
+    assert events[6:] == [None] * 4
+    assert c.jump_s == pytest.approx(136.0 - 119.9)
+    assert c.jump_s <= c.gap_max_s
