@@ -484,10 +484,21 @@ def cmd_replay(args: argparse.Namespace) -> int:
                     f"{100 * last['max_rel_pos_err']:.2f} % of range, worst bias error "
                     f"{last['max_bias_err_mps']:.4f} m/s"
                 )
+                h = reference.honesty(err)
+                if h["after_convergence"]:
+                    n, u = h["after_convergence"], h["uncovered"]
+                    print(
+                        f"  after the first convergence: {u} of {n} estimates "
+                        f"({100 * u / n:.1f} %) outside twice their sigma, worst error "
+                        f"{h['worst_sigma_ratio']:.1f} sigma; error above 5 % of range for "
+                        f"{h['time_above_s']:.1f} s ({100 * h['time_above_share']:.1f} % "
+                        "of the span)"
+                    )
     if args.summary_json:
         doc = summary.to_dict()
         if errors:
             doc["truth_last_third"] = {k: reference.last_third(e) for k, e in errors.items()}
+            doc["truth_honesty"] = {k: reference.honesty(e) for k, e in errors.items()}
         args.summary_json.write_text(json.dumps(doc, indent=1))
     return map_status
 

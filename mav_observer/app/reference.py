@@ -33,6 +33,8 @@ class TimedEstimates(Protocol):
     t_boot_s: list[float]
     rel_pos: list[Any]
     bias: list[Any]
+    pos_std: list[Any]
+    status: list[str]
 
 
 def parse_line(line: str) -> tuple[str, float, list[float], list[float]]:
@@ -90,11 +92,44 @@ def errors(series: TimedEstimates, track: dict[str, list[Any]]) -> dict[str, Any
     a_true = np.column_stack([np.interp(t, tt, as_[:, i]) for i in range(3)])
     xhat = np.asarray(series.rel_pos, dtype=float).reshape(-1, 3)[inside]
     ahat = np.asarray(series.bias, dtype=float).reshape(-1, 3)[inside]
+    sd = np.asarray(series.pos_std, dtype=float).reshape(-1, 3)[inside]
     return {
         "t_boot_s": t,
         "pos_err_m": np.linalg.norm(xhat - x_true, axis=1),
+        "pos_sigma_m": np.sqrt(np.sum(sd**2, axis=1)),  # NaN: no covariance published
+        "converged": np.asarray(series.status, dtype=object)[inside] == "converged",
         "range_true_m": np.linalg.norm(x_true, axis=1),
         "bias_err_mps": np.linalg.norm(ahat - a_true, axis=1),
+    }
+
+
+def honesty(errs: dict[str, Any], rel_threshold: float = 0.05) -> dict[str, float]:
+    """From the first ``converged`` estimate on: how many estimates there are, how many of
+    them the published sigma did not cover (position error beyond twice the 1-sigma radius
+    ``sqrt(trace P_xx)``, or no sigma), the worst error over that sigma, and the time (s) and
+    share of the whole span during which the error exceeded ``rel_threshold`` of the range
+    (each estimate's error held to the next)."""
+    t = errs["t_boot_s"]
+    conv = np.nonzero(errs["converged"])[0]
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    if len(conv) == 0:
+        return {"after_convergence": 0, "uncovered": 0, "worst_sigma_ratio": math.nan,
+                "time_above_s": 0.0, "time_above_share": 0.0}  # fmt: skip
+    k = int(conv[0])
+    err, sig = errs["pos_err_m"][k:], errs["pos_sigma_m"][k:]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = err / sig
+    uncovered = int(np.sum(~(ratio <= 2.0)))
+    above = err / errs["range_true_m"][k:] > rel_threshold
+    dt = np.diff(t[k:], append=t[-1])
+    time_above = float(np.sum(dt[above]))
+    finite = ratio[np.isfinite(ratio)]
+    return {
+        "after_convergence": len(err),
+        "uncovered": uncovered,
+        "worst_sigma_ratio": float(np.max(finite)) if len(finite) else math.nan,
+        "time_above_s": time_above,
+        "time_above_share": time_above / span if span > 0.0 else 0.0,
     }
 
 
@@ -112,4 +147,4 @@ def last_third(errs: dict[str, Any]) -> dict[str, float]:
     }
 
 
-__all__ = ["KEYS", "ReferenceError", "errors", "last_third", "parse_line", "read"]
+__all__ = ["KEYS", "ReferenceError", "errors", "honesty", "last_third", "parse_line", "read"]

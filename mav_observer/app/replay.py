@@ -284,6 +284,7 @@ class ReplaySummary:
                     f"({'learnt' if nz.bias_walk_learnt else 'told'}); "
                     f"{nz.outliers} of {nz.bearings} bearings down-weighted as gross errors; "
                     f"re-acquired {nz.reacquisitions} times"
+                    + (f" ({nz.reacquiring_s:.1f} s re-acquiring)" if nz.reacquisitions else "")
                 )
                 lines.extend(_whiteness_lines(nz))
             for key, (t_s, tp, sd, fitted, windows) in self.smoothed_final.items():

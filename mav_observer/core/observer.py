@@ -101,12 +101,38 @@ class BiasObserver:
         self._estimate: Estimate | None = None
         #: the committed estimates at bearing times not yet taken (``committed=True``)
         self._committed: list[Estimate] = []
+        #: re-acquisitions seen, the time of the open one (NaN: none), the time since
+        #: re-acquiring until converged again summed, the latest estimate's time
+        self._reacq = [0, math.nan, 0.0, math.nan]
 
     def reset(self) -> None:
         """Forget everything: back to the configured initial state, not started."""
         state_mod.reset(self._st, self.config)
         self._estimate = None
         self._committed = []
+        self._reacq = [0, math.nan, 0.0, math.nan]
+
+    def _account(self, est: Estimate) -> Estimate:
+        """Time spent re-acquiring: from a re-seeding to the next ``converged`` estimate."""
+        r = self._reacq
+        n = self.reacquisitions
+        if n != r[0]:
+            r[0] = n
+            if math.isnan(r[1]):
+                r[1] = est.t_s
+        if not math.isnan(r[1]) and est.status is Status.CONVERGED:
+            r[2] += max(est.t_s - r[1], 0.0)
+            r[1] = math.nan
+        r[3] = est.t_s
+        return est
+
+    @property
+    def reacquiring_s(self) -> float:
+        """Time (s) its estimates spent re-acquiring: from each re-seeding (the bearings
+        stopped agreeing with the estimate) to its next ``converged`` estimate, or to the
+        latest estimate while still re-acquiring."""
+        r = self._reacq
+        return r[2] + (0.0 if math.isnan(r[1]) else max(r[3] - r[1], 0.0))
 
     # -- public properties ----------------------------------------------------------
     @property
@@ -253,6 +279,7 @@ class BiasObserver:
             bearings=int(bs[L.B_BEARINGS]),
             outliers=int(bs[L.B_OUTLIERS]),
             reacquisitions=int(bs[L.B_RESEEDS]),
+            reacquiring_s=self.reacquiring_s,
             bearing_latency_s=tau,
             bearing_latency_learnt=math.isnan(told_l),
             bias_walk_mps_per_sqrt_s=math.sqrt(q_a),
@@ -336,7 +363,7 @@ class BiasObserver:
         """The ``k`` committed estimates the kernel wrote into ``out``."""
         if k > 0 and self._committed_mode:
             out = self._st.out
-            self._committed.extend(self._row_estimate(out[i]) for i in range(k))
+            self._committed.extend(self._account(self._row_estimate(out[i])) for i in range(k))
 
     def _row_estimate(self, row: np.ndarray) -> Estimate:
         """An estimate from a row of ``out`` (``layout.E_*``, in :data:`_ROW` order): its
@@ -356,6 +383,8 @@ class BiasObserver:
 
     def _live(self) -> Estimate:
         est = self._row_estimate(self._live_row)
+        if not self._committed_mode:
+            self._account(est)
         self._estimate = est
         return est
 

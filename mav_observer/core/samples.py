@@ -294,7 +294,8 @@ class NoiseLevels:
     * ``velocity_noise_learnt``: likewise.
     * ``bearings``: bearings applied; ``outliers``: of them, down-weighted as gross errors;
       ``reacquisitions``: times the estimate was re-seeded after a persistent
-      inconsistency (the target moved, the tracker locked onto something else).
+      inconsistency (the target moved, the tracker locked onto something else);
+      ``reacquiring_s``: the time (s) from each of those to the next ``converged`` estimate.
     * ``bearing_latency_s``: how long the bearings trail the line of sight in use (s),
       ``bearing_latency_learnt``: learnt online or told.
     * ``bias_walk_mps_per_sqrt_s``: the random walk of the bias in use (m/s per square root
@@ -315,6 +316,7 @@ class NoiseLevels:
     bearings: int
     outliers: int
     reacquisitions: int
+    reacquiring_s: float = 0.0
     bearing_latency_s: float = 0.0
     bearing_latency_learnt: bool = False
     bias_walk_mps_per_sqrt_s: float = 0.0
@@ -331,6 +333,7 @@ class NoiseLevels:
             "bearings": self.bearings,
             "outliers": self.outliers,
             "reacquisitions": self.reacquisitions,
+            "reacquiring_s": round(self.reacquiring_s, 3),
             "bearing_latency_s": self.bearing_latency_s,
             "bearing_latency_learnt": self.bearing_latency_learnt,
             "bias_walk_mps_per_sqrt_s": self.bias_walk_mps_per_sqrt_s,

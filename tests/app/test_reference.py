@@ -18,6 +18,8 @@ class _Series:
     t_boot_s: list[float] = field(default_factory=list)
     rel_pos: list[list[float]] = field(default_factory=list)
     bias: list[list[float]] = field(default_factory=list)
+    pos_std: list[list[float]] = field(default_factory=list)
+    status: list[str] = field(default_factory=list)
 
 
 def _truth_line(t: float, x: list[float], a: list[float]) -> dict:
@@ -56,6 +58,8 @@ def test_errors_interpolate_the_track_at_the_estimates_times(tmp_path: Path) -> 
         s.t_boot_s.append(float(t))
         s.rel_pos.append([10.0 + t, 3.0, 4.0])  # 5 m off, everywhere
         s.bias.append([1.0, 0.0, 0.0])
+        s.pos_std.append([2.0, 2.0, 1.0])  # a 1-sigma radius of 3 m
+        s.status.append("converged" if t >= 4.0 else "converging")
     e = reference.errors(s, track)
     assert len(e["t_boot_s"]) == 11
     np.testing.assert_allclose(e["pos_err_m"], 5.0)
@@ -64,6 +68,13 @@ def test_errors_interpolate_the_track_at_the_estimates_times(tmp_path: Path) -> 
     last = reference.last_third(e)
     assert last["samples"] == 4  # t = 7..10
     assert last["max_rel_pos_err"] == pytest.approx(5.0 / 17.0)
+    # from the first converged estimate (t = 4) on: 7 estimates, each 5 m off with a 3 m
+    # sigma (inside twice it), and above 5 % of the range all along, 6 s of the 10 s span
+    h = reference.honesty(e)
+    assert h["after_convergence"] == 7 and h["uncovered"] == 0
+    assert h["worst_sigma_ratio"] == pytest.approx(5.0 / 3.0)
+    assert h["time_above_s"] == pytest.approx(6.0) and h["time_above_share"] == pytest.approx(0.6)
+    assert reference.honesty(e, rel_threshold=0.5)["time_above_s"] == 0.0
 
 
 def test_a_bad_line_names_the_file_and_line(tmp_path: Path) -> None:
