@@ -17,7 +17,10 @@ How the stream is made (all times on the autopilot's boot clock, ``time_boot_ms`
   LOCAL_POSITION_NED whose consecutive samples are at most ``max_gap_s`` (5 s) apart, and
   only where an ATTITUDE sample lies within ``max_attitude_age_s`` (0.2 s).
 * **Truth**: the vehicle position is LOCAL_POSITION_NED's x, y, z interpolated linearly in
-  time_boot_ms; ``rel_pos_ned_m = target - vehicle``. The vehicle attitude is ATTITUDE
+  time_boot_ms; ``rel_pos_ned_m = target - vehicle``. The target stands still in the world:
+  where the local frame resets (a position step the velocity does not explain, as
+  :func:`frame_steps` finds), the target's local coordinates move with the frame, and the
+  vehicle's path across the reset is the world's (continuous). The vehicle attitude is ATTITUDE
   interpolated as the tracker does (linearly, yaw unwrapped, between samples at most 1 s
   apart; else the nearest).
 * **Messages** (``bearing``): ``gimbal``: GIMBAL_DEVICE_ATTITUDE_STATUS with roll and pitch
@@ -423,6 +426,26 @@ def bearing_times_ms(
     return t_ms[near <= max_attitude_age_s + 1e-9]
 
 
+#: A position step further than this plus ``RESET_GATE_MPS2 dt^2`` off the velocity's
+#: trapezoid is a reset of the local frame (as the tracker's test).
+RESET_GATE_M = 0.5
+RESET_GATE_MPS2 = 5.0
+
+
+def frame_steps(series: _Series) -> np.ndarray:
+    """The local frame's cumulative reset (m) at each LOCAL_POSITION_NED sample, (N, 3): the
+    part of each step between two samples that the velocity's trapezoid does not explain, where
+    that is more than ``RESET_GATE_M + RESET_GATE_MPS2 dt^2`` (an EKF reset or a new origin)."""
+    p, u, t = series.values[:, :3], series.values[:, 3:6], series.t_boot_s
+    steps = np.zeros_like(p)
+    if len(t) > 1:
+        dt = np.diff(t)
+        resid = np.diff(p, axis=0) - 0.5 * (u[:-1] + u[1:]) * dt[:, None]
+        jump = np.linalg.norm(resid, axis=1) > RESET_GATE_M + RESET_GATE_MPS2 * dt**2
+        steps[1:] = np.cumsum(np.where(jump[:, None], resid, 0.0), axis=0)
+    return steps
+
+
 def interp_position(series: _Series, t_s: np.ndarray) -> np.ndarray:
     """LOCAL_POSITION_NED x, y, z (or, with columns 3:6, vx, vy, vz) linearly interpolated
     in boot time, (T, 6)."""
@@ -712,12 +735,19 @@ def inject(records: Sequence[TlogRecord], config: InjectConfig) -> InjectResult:
         if len(t_ms) == 0:
             continue
         t = t_ms * 1e-3
-        pv = interp_position(lpn, t)
+        # the vehicle in the world (the first frame), and the frame's reset at each time
+        steps = frame_steps(lpn)
+        world = _Series(lpn.t_boot_s, lpn.values.copy(), lpn.t_unix_s, lpn.record)
+        world.values[:, :3] -= steps
+        pv = interp_position(world, t)
+        k_at = np.clip(np.searchsorted(lpn.t_boot_s, t, side="right") - 1, 0, len(steps) - 1)
+        step_t = steps[k_at]
         rpy = interp_attitude(att, t)
         rel = target[None, :] - pv[:, :3]
         rng_m = np.linalg.norm(rel, axis=1)
         ok = rng_m > 1e-3
         t_ms, t, pv, rpy, rel, rng_m = t_ms[ok], t[ok], pv[ok], rpy[ok], rel[ok], rng_m[ok]
+        step_t = step_t[ok]
         y_true = rel / rng_m[:, None]
         y = perturb_bearings(y_true, math.radians(config.noise_deg), rng)
         # anchors for the tlog time: every LOCAL_POSITION_NED and ATTITUDE of the epoch
@@ -760,8 +790,8 @@ def inject(records: Sequence[TlogRecord], config: InjectConfig) -> InjectResult:
                     target=target_name,
                     rel_pos_ned_m=rel[k],
                     bias_ned_mps=err,
-                    target_pos_ned_m=target,
-                    vehicle_pos_ned_m=pv[k, :3],
+                    target_pos_ned_m=target + step_t[k],
+                    vehicle_pos_ned_m=pv[k, :3] + step_t[k],
                     vehicle_vel_meas_ned_mps=pv[k, 3:6] + err,
                     attitude_rpy_rad=rpy[k],
                     bearing_ned=y[k],

@@ -27,7 +27,7 @@ import sys
 import tempfile
 import time
 import tomllib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +35,7 @@ import numpy as np
 
 from bench.accuracy import blocks
 from bench.accuracy.report import markdown_table
+from mav_observer.app import reference
 from mav_observer.app.replay import ReplayError, replay
 from mav_observer.core.batch_fit import displacement_at, fit_batch
 from mav_observer.core.observer import ObserverConfig
@@ -109,10 +110,14 @@ def run_log(
     observer: dict[str, Any] | None = None,
     workdir: Path | None = None,
     live: bool = False,
+    fault: Callable[[list[bytes]], list[bytes]] | None = None,
 ) -> dict[str, Any]:
     """Inject, replay, fit and score one log (``live``: ``replay --live``, what the service
-    publishes, instead of replay's default)."""
+    publishes, instead of replay's default; ``fault``: applied to the injected log's records,
+    :mod:`sim.tlog_faults`)."""
     res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
+    if fault is not None:
+        res.records[:] = fault(res.records)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "injected.tlog"
         path.write_bytes(b"".join(res.records))
@@ -169,6 +174,22 @@ def run_log(
     within = err_h <= 2.0 * sd_h  # (an estimate without a target position counts as outside)
     status = np.array([r["status"] for r in est])[inside]
     conv = np.nonzero(status == "converged")[0]
+    # after the first convergence: the target position's error over its published sigma (the
+    # 1-sigma radius; the target's, not the relative position's, for the reason above) and
+    # the time above 5 % of the range, as the replay's --truth summary counts them
+    truth_tgt = np.array([d.get("target_pos_ned_m", res.target_ned_m) for d in truth], float)
+    tgt_t = np.column_stack([np.interp(te, tt, truth_tgt[:, i]) for i in range(3)])
+    sd3 = np.array(
+        [math.nan if r["rel_pos_std_ned_m"] is None else math.hypot(*r["rel_pos_std_ned_m"])
+         for r in est],
+        dtype=float,
+    ).reshape(-1)[inside]  # fmt: skip
+    hon = reference.honesty({
+        "t_boot_s": te, "pos_err_m": np.linalg.norm(tgt_e[inside] - tgt_t, axis=1),
+        "pos_sigma_m": sd3,
+        "converged": np.array([r["status"] for r in est])[inside] == "converged",
+        "range_true_m": np.linalg.norm(xi, axis=1),
+    })  # fmt: skip
     within_last = float(np.mean(within[sel_e])) if sel_e.any() else math.nan
     within_conv = float(np.mean(within[conv[0] :])) if len(conv) else math.nan
 
@@ -210,14 +231,29 @@ def run_log(
         "within_2sd_conv": within_conv,
         "conv_n": int(len(within) - conv[0]) if len(conv) else 0,
         "converged_share": float(np.mean(status == "converged")) if len(status) else 0.0,
+        "worst_sigma_ratio": hon["worst_sigma_ratio"],
+        "uncovered": hon["uncovered"],
+        "after_convergence": hon["after_convergence"],
+        "time_above_5pct_share": hon["time_above_s"] / (t1 - t0) if t1 > t0 else 0.0,
         "batch_rel_rms": batch,
         "ratio": prod / batch if batch > 0 else math.inf,
         "smoothed_rel_rms_all": smoothed,
         "batch_rel_rms_all": batch_all,
         "estimates": len(est),
+        # the scored target's own (the log's own gimbal, another target, may re-acquire too)
+        "reacquired": _noise_of(summary, key, "reacquisitions"),
+        "reacquiring_s": _noise_of(summary, key, "reacquiring_s"),
         "events": events,
+        "skipped": {} if summary is None else dict(summary.skipped),
         "replay_s": replay_s,
     }
+
+
+def _noise_of(summary: Any, key: str, name: str) -> float:
+    """A field of target ``key``'s noise summary (0 without one)."""
+    ts = None if summary is None else summary.targets.get(key)
+    noise = None if ts is None else ts.noise
+    return 0 if noise is None else getattr(noise, name)
 
 
 def table(rows: list[dict[str, Any]]) -> str:

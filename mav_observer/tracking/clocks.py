@@ -35,8 +35,8 @@ Policy (``docs/frames.md``, "Time"):
   recorder stalled: its stamps bunch while its clock went on), the mapping restarts from
   them (``clock_jump``, the step in ``jump_s``); a forward step of up to ``gap_max_s`` is a
   telemetry gap to the caller, not a new clock. A forward candidate is confirmed by
-  ``confirm_count`` messages spanning ``confirm_s`` of arrival time *or of its own clock*
-  (a recorder's bursts stamp many messages alike).
+  ``confirm_count`` messages spanning ``confirm_s`` of arrival time *or*
+  ``confirm_own_s`` of its own clock (a recorder's bursts stamp many messages alike).
 """
 
 from __future__ import annotations
@@ -56,6 +56,8 @@ class ClockMap:
     reorder_s: float = 0.25
     confirm_count: int = 5
     confirm_s: float = 0.5
+    #: or of its own clock (s): a recorder's bursts stamp many messages alike
+    confirm_own_s: float = 0.1
     jump_ahead_s: float = 10.0
     max_rate: float = 100.0
     #: a confirmed forward step up to this (s) is a telemetry gap, not another clock
@@ -84,7 +86,7 @@ class ClockMap:
             back = self.last_boot_s - boot_s
             ahead = -back - self._advance_max(arrival_s - self.last_arrival_s)
             if back > self.reboot_back_s or ahead > 0.0:
-                group = self._confirm(boot_s, arrival_s)
+                group = self._confirm(boot_s, arrival_s, forward=back <= 0.0)
                 if group is None:
                     return "clock_unconfirmed" if back > 0.0 else "time_jump"
                 self.offset_s = group[4]
@@ -116,16 +118,19 @@ class ClockMap:
         """How far a boot clock may advance in ``arrival_dt_s`` of arrival time (s)."""
         return self.jump_ahead_s + self.max_rate * max(0.0, arrival_dt_s)
 
-    def _confirm(self, boot_s: float, arrival_s: float) -> list[float] | None:
-        """Add a message of a possible new clock to the candidate it follows (a later boot
-        time, by no more than :meth:`_advance_max`), or start a new one; return that
+    def _confirm(self, boot_s: float, arrival_s: float, forward: bool) -> list[float] | None:
+        """Add a message of a possible new clock to the candidate it follows (a boot time
+        at most ``reorder_s`` earlier or later by no more than :meth:`_advance_max`), or start
+        a new one; return that
         candidate once ``confirm_count`` messages of it span ``confirm_s`` of arrival time."""
         for group in self.pending:
             first_a, count, b0, a0, low, first_b = group
-            if b0 < boot_s <= b0 + self._advance_max(arrival_s - a0):
-                group[1:5] = [count + 1, boot_s, arrival_s, min(low, arrival_s - boot_s)]
-                span = max(arrival_s - first_a, boot_s - first_b if boot_s > first_b else 0.0)
-                if group[1] >= self.confirm_count and span >= self.confirm_s:
+            # (another stream of the clock may be stamped a little earlier: in order)
+            if b0 - self.reorder_s < boot_s <= b0 + self._advance_max(arrival_s - a0):
+                group[1:5] = [count + 1, max(b0, boot_s), arrival_s, min(low, arrival_s - boot_s)]
+                own = forward and boot_s - first_b >= self.confirm_own_s  # its own clock
+                ok = arrival_s - first_a >= self.confirm_s or own
+                if group[1] >= self.confirm_count and ok:
                     return group
                 return None
         self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s, boot_s])
