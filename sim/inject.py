@@ -435,13 +435,19 @@ RESET_GATE_MPS2 = 5.0
 def frame_steps(series: _Series) -> np.ndarray:
     """The local frame's cumulative reset (m) at each LOCAL_POSITION_NED sample, (N, 3): the
     part of each step between two samples that the velocity's trapezoid does not explain, where
-    that is more than ``RESET_GATE_M + RESET_GATE_MPS2 dt^2`` (an EKF reset or a new origin)."""
+    that is more than ``RESET_GATE_M + RESET_GATE_MPS2 dt^2`` and as much off the previous
+    interval's (a step, not a velocity that disagrees with the positions for a while: the
+    tracker's test, ``mav_observer.core.drift``)."""
     p, u, t = series.values[:, :3], series.values[:, 3:6], series.t_boot_s
     steps = np.zeros_like(p)
     if len(t) > 1:
         dt = np.diff(t)
         resid = np.diff(p, axis=0) - 0.5 * (u[:-1] + u[1:]) * dt[:, None]
-        jump = np.linalg.norm(resid, axis=1) > RESET_GATE_M + RESET_GATE_MPS2 * dt**2
+        gate = RESET_GATE_M + RESET_GATE_MPS2 * dt**2
+        rate = resid / dt[:, None]
+        before = np.vstack((np.zeros((1, 3)), rate[:-1]))
+        step = np.linalg.norm(rate - before, axis=1) * dt
+        jump = (np.linalg.norm(resid, axis=1) > gate) & (step > gate)
         steps[1:] = np.cumsum(np.where(jump[:, None], resid, 0.0), axis=0)
     return steps
 

@@ -458,7 +458,7 @@ def streams_call(
     elif op == 6:
         return float(streams.breakpoints(q, vbuf, bbuf, t, t1, min_interval, mba, out))
     elif op == 7:
-        return streams.horizon(q, vbuf, bbuf, mba, mva, max_buffer, t)
+        return streams.horizon(q, vbuf, bbuf, mba, mva, max_buffer, t != 0.0)
     elif op == 8:
         return 1.0 if streams.can_wait(q, vbuf, bbuf, mba, max_buffer) else 0.0
     elif op == 9:
@@ -538,9 +538,9 @@ class Streams:
         k = int(self._call(S_BREAKPOINTS, t0, t1, out=out, min_interval=min_interval_s))
         return out[:k].tolist()
 
-    def horizon(self, t_committed_s: float = 0.0) -> float:
+    def horizon(self, held: bool = False) -> float:
         """(``max_velocity_age_s`` stands for the observer's ``max_velocity_wait_s``.)"""
-        return self._call(S_HORIZON, t_committed_s)
+        return self._call(S_HORIZON, 1.0 if held else 0.0)
 
     def can_wait(self) -> bool:
         return bool(self._call(S_CAN_WAIT))

@@ -37,7 +37,7 @@ from bench.accuracy import blocks
 from bench.accuracy.report import markdown_table
 from mav_observer.app import reference
 from mav_observer.app.replay import ReplayError, replay
-from mav_observer.core.batch_fit import displacement_at, fit_batch
+from mav_observer.core.batch_fit import NotObservableError, displacement_at, fit_batch
 from mav_observer.core.observer import ObserverConfig
 from mav_observer.tracking.tracker import TrackerConfig
 from sim import inject as inj
@@ -83,16 +83,26 @@ def epoch_records(est: list[dict[str, Any]], tt: np.ndarray) -> list[dict[str, A
 
 
 def injected(
-    log: Path, *, seed: int, noise_deg: float, vel_error: tuple[float, float, float]
+    log: Path,
+    *,
+    seed: int,
+    noise_deg: float,
+    vel_error: tuple[float, float, float],
+    target_offset_ned_m: tuple[float, float, float] | None = None,
 ) -> inj.InjectResult:
-    """``log`` with the bench's bearing stream injected (``--target auto``): a log with a
-    gimbal of its own gets it as a second gimbal device."""
+    """``log`` with the bench's bearing stream injected (``--target auto``, moved by
+    ``target_offset_ned_m``): a log with a gimbal of its own gets it as a second gimbal
+    device."""
     records = inj.split_records(log.read_bytes())
     probe = inj.InjectConfig(target_ned_m=None, noise_deg=noise_deg, seed=seed)
     sysid = max(inj.vehicles_with_local_position(records).items(), key=lambda kv: kv[1])[0][0]
     dev = 2 if inj.same_target_frames(records, sysid, probe) else 1
+    target = None
+    if target_offset_ned_m is not None:
+        auto = inj.auto_target(inj.read_flight(records, sysid=sysid))
+        target = tuple(float(v) for v in auto + np.asarray(target_offset_ned_m))
     cfg = inj.InjectConfig(
-        target_ned_m=None,
+        target_ned_m=target,
         noise_deg=noise_deg,
         vel_error_ned_mps=vel_error,
         seed=seed,
@@ -111,11 +121,13 @@ def run_log(
     workdir: Path | None = None,
     live: bool = False,
     fault: Callable[[list[bytes]], list[bytes]] | None = None,
+    target_offset_ned_m: tuple[float, float, float] | None = None,
 ) -> dict[str, Any]:
     """Inject, replay, fit and score one log (``live``: ``replay --live``, what the service
     publishes, instead of replay's default; ``fault``: applied to the injected log's records,
     :mod:`sim.tlog_faults`)."""
-    res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error)
+    res = injected(log, seed=seed, noise_deg=noise_deg, vel_error=vel_error,
+                   target_offset_ned_m=target_offset_ned_m)  # fmt: skip
     if fault is not None:
         res.records[:] = fault(res.records)
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -196,11 +208,14 @@ def run_log(
     # the batch optimum over the same bearings and velocity
     lpn = flight.local_position[ep]
     d = displacement_at(tt, lpn.t_boot_s, lpn.values[:, 3:6], lpn.values[:, :3])
-    fit = fit_batch(tt, yt, d, sigma_rad=math.radians(max(noise_deg, 0.01)))
-    xb = fit.rel_pos_at()
-    rel_b = np.linalg.norm(xb - xt, axis=1) / rng_t
-    batch = math.sqrt(float(np.mean(rel_b[sel_t] ** 2)))
-    batch_all = math.sqrt(float(np.mean(rel_b**2)))
+    try:
+        fit = fit_batch(tt, yt, d, sigma_rad=math.radians(max(noise_deg, 0.01)))
+    except NotObservableError:  # too little motion for the batch fit too: no reference
+        batch = batch_all = math.inf
+    else:
+        rel_b = np.linalg.norm(fit.rel_pos_at() - xt, axis=1) / rng_t
+        batch = math.sqrt(float(np.mean(rel_b[sel_t] ** 2)))
+        batch_all = math.sqrt(float(np.mean(rel_b**2)))
     # the product's smoother (replay --smooth) over the whole injected span
     smoothed = math.inf
     # (of the truth's epoch: the replay's key of each epoch after the first ends in #k)

@@ -59,6 +59,7 @@ from mav_observer.core.kernels.layout import (
     R_VN,
     R_WH_PREV,
     R_XH1,
+    S_HELD,
     S_SETTLED,
     S_STARTED,
     S_T_BEARING,
@@ -162,7 +163,7 @@ def predict(cfg, s, vec, fs, fp, vbuf, t, h, v, y, has_y, a_ref, moved, wk) -> N
         q_x = velocity_noise_mps(cfg, s) ** 2 * q[Q_VDT]
         if streams.chord_at(q, vbuf, t):
             q_x = min(q_x, CHORD_NOISE_MPS**2 * q[Q_VDT])
-        if h > 0.0:  # past the latest velocity (a gap): the held velocity's error
+        if h > 0.0 and s[S_HELD] != 0.0:  # past a stale velocity (a gap): the held one's error
             q_x += streams.held_var_increment(q, vbuf, t, h) / h
         dx = wk[0:n]
         for i in range(n):

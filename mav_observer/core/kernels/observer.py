@@ -77,6 +77,7 @@ from mav_observer.core.kernels.layout import (
     S_COND_T,
     S_DIAG_EXC,
     S_DIAG_T,
+    S_HELD,
     S_N_BEARING,
     S_N_VELOCITY,
     S_SINCE,
@@ -380,6 +381,7 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
         if int(q[Q_NV]) >= vbuf.shape[0] - 1:
             return ERR_BUFFER_FULL
         streams.append_velocity(q, vbuf, t, u)
+        s[S_HELD] = 0.0
         if has_w:  # before any commit: the interval just closed is integrated with its mean
             streams.set_interval_mean(q, vbuf, t, w)
     elif (op == OP_BEARING) | (op == OP_BEARING_LIVE):
@@ -414,7 +416,9 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
             horizon = bbuf[nb - 1, 0] if nb > 0 else s[S_T_C]
         else:
             horizon = streams.horizon(q, vbuf, bbuf, mba, cfg[O_MAX_VELOCITY_WAIT_S], cap,
-                                      s[S_T_C])  # fmt: skip
+                                      s[S_HELD] != 0.0)  # fmt: skip
+            if horizon > vbuf[int(q[Q_NV]) - 1, VB_T]:
+                s[S_HELD] = 1.0  # the velocity is stale: held until the next one
         if horizon > s[S_T_C]:
             # stop at each bearing's time (each once) when its estimate is kept
             last = s[S_T_C]

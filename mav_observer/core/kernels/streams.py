@@ -274,10 +274,10 @@ def restart_velocity(q, vbuf, bbuf, t, v) -> None:
 
 
 @njit(inline="always", error_model="numpy")
-def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_wait_s, max_buffer, t_c) -> float:
+def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_wait_s, max_buffer, held) -> float:
     """The latest time both streams determine: the earlier stream's latest sample, unless
     the other has gone stale (the velocity: ``max_velocity_wait_s`` behind the bearings, or
-    the committed time ``t_c`` already past it) or a buffer is full."""
+    ``held`` already, the state committed past it) or a buffer is full."""
     nv, nb = int(q[Q_NV]), int(q[Q_NB])
     tb = bbuf[nb - 1, 0]
     tv = vbuf[nv - 1, VB_T]
@@ -293,7 +293,7 @@ def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_wait_s, max_buffer, t
         first = tb
     if tv > tb + max_bearing_age_s:
         h = tv  # bearing stale: no future bearing can correct this stretch
-    elif tb > first + max_velocity_wait_s or t_c > tv:
+    elif tb > first + max_velocity_wait_s or held:
         h = tb  # velocity stale: hold it
     else:
         h = min(tb, tv)

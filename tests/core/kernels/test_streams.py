@@ -192,7 +192,7 @@ def test_the_horizon_is_the_earlier_stream_unless_the_other_is_stale_or_full() -
     for k in range(1, 6):
         u.append_bearing(3.0 + 0.5 * k, [1.0, 0.0, 0.0])
     assert u.horizon() == 5.5  # bearings for more than 2 s: the velocity is stale, held
-    assert u.horizon(t_committed_s=0.5) == 5.5  # and once past it, the horizon follows
+    assert u.horizon(held=True) == 5.5  # and once held past it, the horizon follows
     w = kc.Streams()
     w.append_velocity(0.0, [0.0, 0.0, 0.0])
     w.append_bearing(0.5, [1.0, 0.0, 0.0])
@@ -240,3 +240,17 @@ def test_a_prediction_past_the_data_moves_x_by_v_plus_a(estimator: str) -> None:
     np.testing.assert_allclose(est.x_m - x0, 2.0 * (np.array([1.0, -0.5, 0.25]) + a0), atol=1e-9)
     np.testing.assert_array_equal(est.a_mps, a0)
     assert obs.committed_t_s == t_c and np.array_equal(obs.x_m, x0)
+
+
+def test_started_after_the_only_velocity_the_bearings_wait_for_the_next_one() -> None:
+    """A 1 Hz velocity: the observer starts at a bearing after the only velocity sample; the
+    bearings after it wait for the next velocity (they are not committed on the velocity
+    held, which only a stale velocity is)."""
+    obs = BiasObserver()
+    obs.update_velocity_values(0.0, [1.0, 0.0, 0.0])
+    for k in range(1, 10):
+        obs.update_bearing_values(0.1 * k, [0.0, 1.0, 0.0])
+    assert obs.committed_t_s == pytest.approx(0.1)
+    obs.update_velocity_values(1.0, [1.0, 0.0, 0.0])
+    obs.update_bearing_values(1.05, [0.0, 1.0, 0.0])
+    assert obs.committed_t_s == 1.0
