@@ -15,6 +15,7 @@ ORDER = (
     "end-to-end-adaptive",
     "real-logs",
     "real-logs-other",
+    "robustness",
 )
 
 
