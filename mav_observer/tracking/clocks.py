@@ -34,9 +34,9 @@ Policy (``docs/frames.md``, "Time"):
   was the stray one, or a telemetry gap of a simulator run faster than real time whose
   recorder stalled: its stamps bunch while its clock went on), the mapping restarts from
   them (``clock_jump``, the step in ``jump_s``); a forward step of up to ``gap_max_s`` is a
-  telemetry gap to the caller, not a new clock. A forward candidate is confirmed by
-  ``confirm_count`` messages spanning ``confirm_s`` of arrival time *or*
-  ``confirm_own_s`` of its own clock (a recorder's bursts stamp many messages alike).
+  telemetry gap to the caller, not a new clock. A candidate ahead is confirmed only while it
+  has at least twice the messages the current clock had beside it: a clock that goes on is
+  not in a gap (stray frames that a bit flip put ahead of it form a run of their own).
 """
 
 from __future__ import annotations
@@ -56,8 +56,6 @@ class ClockMap:
     reorder_s: float = 0.25
     confirm_count: int = 5
     confirm_s: float = 0.5
-    #: or of its own clock (s): a recorder's bursts stamp many messages alike
-    confirm_own_s: float = 0.1
     jump_ahead_s: float = 10.0
     max_rate: float = 100.0
     #: a confirmed forward step up to this (s) is a telemetry gap, not another clock
@@ -68,7 +66,7 @@ class ClockMap:
     last_boot_s: float | None = None
     last_arrival_s: float | None = None
     #: candidate new clocks: [first arrival, count, last boot, last arrival, min arrival - boot,
-    #: first boot]
+    #: messages of the current clock since, when the candidate is ahead of it]
     pending: list[list[float]] = field(default_factory=list)
     #: most candidate clocks tracked at once (stray messages each start one)
     max_candidates: int = 8
@@ -86,11 +84,11 @@ class ClockMap:
             back = self.last_boot_s - boot_s
             ahead = -back - self._advance_max(arrival_s - self.last_arrival_s)
             if back > self.reboot_back_s or ahead > 0.0:
-                group = self._confirm(boot_s, arrival_s, forward=back <= 0.0)
+                group = self._confirm(boot_s, arrival_s)
                 if group is None:
                     return "clock_unconfirmed" if back > 0.0 else "time_jump"
                 self.offset_s = group[4]
-                self.jump_s = group[5] - self.last_boot_s
+                self.jump_s = group[2] - self.last_boot_s
                 self.last_boot_s, self.last_arrival_s = group[2], group[3]
                 self.pending = []
                 return "reboot" if back > 0.0 else "clock_jump"
@@ -101,7 +99,11 @@ class ClockMap:
                     self.offset_s = min(self.offset_s, arrival_s - boot_s)
                 return None
         if self.pending:  # candidates not heard of for a while: the old clock went on
-            self.pending = [g for g in self.pending if arrival_s - g[3] <= 2 * self.confirm_s]
+            fresh = arrival_s - 2 * self.confirm_s
+            self.pending = [g for g in self.pending if g[3] >= fresh]
+            for g in self.pending:  # this clock goes on beside a candidate ahead of it
+                if g[2] > boot_s:
+                    g[5] += 1
         candidate = arrival_s - boot_s
         if self.offset_s is None:
             self.offset_s = candidate
@@ -118,22 +120,26 @@ class ClockMap:
         """How far a boot clock may advance in ``arrival_dt_s`` of arrival time (s)."""
         return self.jump_ahead_s + self.max_rate * max(0.0, arrival_dt_s)
 
-    def _confirm(self, boot_s: float, arrival_s: float, forward: bool) -> list[float] | None:
+    def _confirm(self, boot_s: float, arrival_s: float) -> list[float] | None:
         """Add a message of a possible new clock to the candidate it follows (a boot time
         at most ``reorder_s`` earlier or later by no more than :meth:`_advance_max`), or start
         a new one; return that
         candidate once ``confirm_count`` messages of it span ``confirm_s`` of arrival time."""
         for group in self.pending:
-            first_a, count, b0, a0, low, first_b = group
-            # (another stream of the clock may be stamped a little earlier: in order)
-            if b0 - self.reorder_s < boot_s <= b0 + self._advance_max(arrival_s - a0):
-                group[1:5] = [count + 1, max(b0, boot_s), arrival_s, min(low, arrival_s - boot_s)]
-                own = forward and boot_s - first_b >= self.confirm_own_s  # its own clock
-                ok = arrival_s - first_a >= self.confirm_s or own
-                if group[1] >= self.confirm_count and ok:
+            first_a, count, b0, a0, low, beside = group
+            if b0 < boot_s <= b0 + self._advance_max(arrival_s - a0):
+                group[1:5] = [count + 1, boot_s, arrival_s, min(low, arrival_s - boot_s)]
+                span = arrival_s - first_a
+                # a clock ahead that the current one goes on beside is a run of stray frames
+                # (a bit flip), unless it outnumbers it (the current one was the stray)
+                if (
+                    group[1] >= self.confirm_count
+                    and span >= self.confirm_s
+                    and count >= 2 * beside
+                ):
                     return group
                 return None
-        self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s, boot_s])
+        self.pending.append([arrival_s, 1, boot_s, arrival_s, arrival_s - boot_s, 0])
         if len(self.pending) > self.max_candidates:
             self.pending.sort(key=lambda g: g[1])  # forget the least supported candidate
             del self.pending[0]
