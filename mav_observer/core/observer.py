@@ -103,19 +103,20 @@ class BiasObserver:
         self._committed: list[Estimate] = []
         #: re-acquisitions seen, the time of the open one (NaN: none), the time since
         #: re-acquiring until converged again summed, the latest estimate's time
-        self._reacq = [0, math.nan, 0.0, math.nan]
+        self._reacq = [0.0, math.nan, 0.0, math.nan]
+        self._bank = self._st.cfg[L.O_KIND] == L.KIND_BANK
 
     def reset(self) -> None:
         """Forget everything: back to the configured initial state, not started."""
         state_mod.reset(self._st, self.config)
         self._estimate = None
         self._committed = []
-        self._reacq = [0, math.nan, 0.0, math.nan]
+        self._reacq = [0.0, math.nan, 0.0, math.nan]
 
     def _account(self, est: Estimate) -> Estimate:
         """Time spent re-acquiring: from a re-seeding to the next ``converged`` estimate."""
         r = self._reacq
-        n = self.reacquisitions
+        n = self._st.s[L.OFF_BS + L.B_RESEEDS] if self._bank else 0.0
         if n != r[0]:
             r[0] = n
             if math.isnan(r[1]):
@@ -551,6 +552,8 @@ class BiasObserver:
             raise StateError("observer state has no 'config'") from exc
         obs = cls(config, committed=committed)
         state_mod.restore(obs._st, d.get("arrays"), config)
+        if obs._bank:  # the re-seedings before the save are not this run's to time
+            obs._reacq[0] = obs._st.s[L.OFF_BS + L.B_RESEEDS]
         est = d.get("estimate")
         if est is not None:
             obs._estimate = _estimate_from_dict(est)

@@ -94,6 +94,10 @@ def test_real_simulator_flight_finds_the_region_of_interest(tmp_path: Path) -> N
     live = rp.replay(str(log), tracker_config=TrackerConfig(gimbal_angles="body"), live=True)
     assert live.targets["1/gimbal"].estimates == 1634
     assert s.events["reacquired"] >= 1  # counted, and said
+    # and timed: from each re-seeding to the next converged estimate (none here: to the end)
+    nz = s.targets["1/gimbal"].noise
+    assert nz is not None and nz.reacquisitions == s.events["reacquired"]
+    assert 10.0 < nz.reacquiring_s <= t[-1] - t[0]
 
 
 def test_the_sitl_servo_mounts_body_angles_are_found_with_the_default_settings(

@@ -284,13 +284,15 @@ def horizon(q, vbuf, bbuf, max_bearing_age_s, max_velocity_wait_s, max_buffer, h
     # the bearings past the latest velocity have waited since the first of them after the
     # latest gap in the bearings too (after a gap in both streams, the first bearing back
     # waits for the velocity back)
-    first = math.nan
-    for i in range(nb):
-        ti = bbuf[i, 0]
-        if ti > tv and (math.isnan(first) or ti - bbuf[i - 1, 0] > max_bearing_age_s):
-            first = ti
-    if math.isnan(first):
-        first = tb
+    first = tb
+    if tb > tv + max_velocity_wait_s:  # (else no bearing can have waited that long)
+        first = math.nan
+        for i in range(nb):
+            ti = bbuf[i, 0]
+            if ti > tv and (math.isnan(first) or ti - bbuf[i - 1, 0] > max_bearing_age_s):
+                first = ti
+        if math.isnan(first):
+            first = tb
     if tv > tb + max_bearing_age_s:
         h = tv  # bearing stale: no future bearing can correct this stretch
     elif tb > first + max_velocity_wait_s or held:
