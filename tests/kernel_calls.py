@@ -620,6 +620,7 @@ def monitor_call(
             a[13],
             a[14],
             a[15],
+            a[16],
         )
         out[0], out[1] = status, since
     return 0.0
@@ -694,6 +695,7 @@ def next_status(
     window_full_s: float,
     excitation_min: float,
     converged_tol: float,
+    sd_rel: float = 0.0,
 ) -> tuple[int, float]:
     """:func:`mav_observer.core.kernels.monitor.next_status` (an age NaN: no sample)."""
     args = np.array(
@@ -714,6 +716,7 @@ def next_status(
             window_full_s,
             excitation_min,
             converged_tol,
+            sd_rel,
         ],
         dtype=float,
     )

@@ -34,6 +34,8 @@ from mav_observer.core.kernels.layout import (
     STALE,
 )
 
+#: A converged estimate's position sigma is at most this share of its range.
+CONVERGED_SD_REL = 0.05
 
 @njit(inline="always", error_model="numpy")
 def _count(win) -> int:
@@ -176,9 +178,12 @@ def shift(win, dt_s, bucket_s) -> None:
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def next_status(status, since, t, started, b_age, v_age, exc, cov, corr, settled,
                 max_bearing_age_s, max_velocity_age_s, window_s, window_full_s,
-                excitation_min, converged_tol) -> tuple[int, float]:  # fmt: skip
+                excitation_min, converged_tol, sd_rel) -> tuple[int, float]:  # fmt: skip
     """The status rules: the new ``(status, observable_since)`` from the previous ones
-    (``since`` NaN: not observable now; an age NaN: no sample yet)."""
+    (``since`` NaN: not observable now; an age NaN: no sample yet). ``sd_rel``: the position's
+    1-sigma radius over the range (0 where the estimator has no covariance): an estimate
+    whose own sigma is more than :data:`CONVERGED_SD_REL` of its range is not converged,
+    however little it moves (a geometry that does not determine the range)."""
     if (
         not started
         or math.isnan(b_age)
@@ -191,7 +196,9 @@ def next_status(status, since, t, started, b_age, v_age, exc, cov, corr, settled
     if cov >= window_full_s and exc < threshold:
         return NOT_OBSERVABLE, math.nan
     s = t if math.isnan(since) else since
-    tol = converged_tol * (2.0 if status == CONVERGED else 1.0)
-    if settled and t - s >= window_s and corr <= tol:
+    hold = 2.0 if status == CONVERGED else 1.0
+    if settled and t - s >= window_s and corr <= converged_tol * hold and (
+        sd_rel <= CONVERGED_SD_REL * hold
+    ):
         return CONVERGED, s
     return CONVERGING, s

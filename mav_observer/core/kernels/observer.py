@@ -255,10 +255,19 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
         s[S_COND] = estimator.cond(cfg, s, vec, p, wk2)
     cov = monitor.covered(win)
     corr = monitor.correction_rel(win, n, rng)
+    sd_rel = 0.0  # (an estimator without a covariance: its corrections alone)
+    if has_cov and started:
+        if not predicted_cov:
+            estimator.position_cov(cfg, s, p, dt, streams.trend_known(q, vbuf), pxx)
+        tr = 0.0
+        for i in range(n):
+            tr += max(pxx[i, i], 0.0)
+        sd_rel = math.sqrt(tr) / max(rng, 1e-9)
     status, since = monitor.next_status(
         int(s[S_STATUS]), s[S_SINCE], t, started, b_age, v_age, exc, cov, corr,
         estimator.settled(cfg, s), cfg[O_MAX_BEARING_AGE_S], cfg[O_MAX_VELOCITY_AGE_S],
         cfg[O_WINDOW_S], cfg[O_WINDOW_FULL_S], cfg[O_EXCITATION_MIN], cfg[O_CONVERGED_TOL],
+        sd_rel,
     )  # fmt: skip
     s[S_STATUS] = status
     s[S_SINCE] = since
@@ -275,8 +284,6 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
     row[E_FIXED : E_FIXED + n] = xh
     row[E_FIXED + n : E_FIXED + 2 * n] = st[n:]
     if has_cov and started:
-        if not predicted_cov:
-            estimator.position_cov(cfg, s, p, dt, streams.trend_known(q, vbuf), pxx)
         var_r = 0.0
         for i in range(n):
             ui = xh[i] / rng if rng > 0.0 else xh[i]

@@ -147,3 +147,13 @@ def test_status_converged_needs_the_estimator_settled() -> None:
     m = _status(*m, t=61.0)
     assert m[0] == CONVERGED
     assert _status(*m, t=62.0, settled=False)[0] == CONVERGING
+
+
+def test_status_converged_needs_its_own_sigma_small() -> None:
+    """Still corrections, but a position sigma over 5 % of the range (a geometry that does
+    not determine the range): converging; at 4 %: converged; once converged it holds to
+    10 %."""
+    assert _status(CONVERGING, 0.0, sd_rel=0.08)[0] == CONVERGING
+    assert _status(CONVERGING, 0.0, sd_rel=0.04)[0] == CONVERGED
+    assert _status(CONVERGED, 0.0, sd_rel=0.08)[0] == CONVERGED
+    assert _status(CONVERGED, 0.0, sd_rel=0.12)[0] == CONVERGING
