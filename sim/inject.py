@@ -70,6 +70,7 @@ from typing import Any
 
 import numpy as np
 
+from mav_observer.core.batch_fit import RESET_GATE_M, RESET_GATE_MPS2
 from mav_observer.geo.frames import euler_to_dcm, quat_from_euler
 from mav_observer.mavlink.dialect import MSG_ID, codec, mavlink
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
@@ -426,10 +427,6 @@ def bearing_times_ms(
     return t_ms[near <= max_attitude_age_s + 1e-9]
 
 
-#: A position step further than this plus ``RESET_GATE_MPS2 dt^2`` off the velocity's
-#: trapezoid is a reset of the local frame (as the tracker's test).
-RESET_GATE_M = 0.5
-RESET_GATE_MPS2 = 5.0
 
 
 def frame_steps(series: _Series) -> np.ndarray:

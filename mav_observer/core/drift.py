@@ -18,6 +18,7 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from mav_observer.core.batch_fit import RESET_GATE_M, RESET_GATE_MPS2
 from mav_observer.core.samples import Estimate
 
 if TYPE_CHECKING:
@@ -90,7 +91,7 @@ class PositionDrift:
         self.deviation_mps = dev
         off = math.sqrt(sum(d * d for d in dev)) * dt
         step = math.sqrt(sum((d - b) ** 2 for d, b in zip(dev, before, strict=True))) * dt
-        gate = 0.5 + 5.0 * dt * dt
+        gate = RESET_GATE_M + RESET_GATE_MPS2 * dt * dt
         w = dt / (seen_s + dt) if seen_s < DRIFT_LEARN_S else 0.0
         # every interval teaches the drift, a jump's share clipped to the gate, so that a
         # reset moves it little and a large constant error is still learnt
