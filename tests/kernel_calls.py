@@ -437,7 +437,8 @@ def is_static(xh1, m, ahat, v, y, hold_speed_mps, hold_deg) -> bool:
     S_TREND,
     S_CHORD,
     S_DISPLACEMENT,
-) = range(15)
+    S_SHAPE_VAR,
+) = range(16)
 
 
 @njit(cache=True)
@@ -473,6 +474,8 @@ def streams_call(
         return 1.0 if streams.chord_at(q, vbuf, t) else 0.0
     elif op == 14:
         streams.predicted_displacement(q, vbuf, t, t1, linear, mva, out, np.zeros(out.shape[0]))
+    elif op == 15:
+        return streams.shape_var(q, vbuf, t, mva)
     return 0.0
 
 
@@ -547,6 +550,11 @@ class Streams:
 
     def trim(self, t_c) -> None:
         self._call(S_TRIM, t_c)
+
+    def shape_var_m2(self, t) -> float:
+        """The path's variance inside a telemetry gap at ``t`` (the gap: over
+        ``max_velocity_age_s``)."""
+        return self._call(S_SHAPE_VAR, t)
 
     def extrapolation_var_m2(self, t) -> float:
         return self._call(S_EXTRAP_VAR, t)

@@ -44,6 +44,10 @@ SPARSE_INTERVAL_S = 0.2
 #: The least drift rate (m/s^2) of a velocity held across a telemetry gap: a vehicle may turn
 #: or brake in a gap however steady it was before, and the covariance must say so.
 GAP_ACCEL_MPS2 = 1.0
+#: A velocity interval longer than the staleness limit is a telemetry gap only when it is also
+#: more than this many times the stream's interval before it: a stream whose own cadence is
+#: longer than the limit (LOCAL_POSITION_NED at 0.4 Hz) has no gap between its samples.
+GAP_CADENCE_FACTOR = 2.0
 
 
 @njit(inline="always", error_model="numpy")
@@ -190,7 +194,8 @@ def held_var_increment(q, vbuf, t, h) -> float:
 @njit(inline="always", error_model="numpy")
 def shape_var(q, vbuf, t, gap_s) -> float:
     """The variance (m^2 per axis) of the displacement at ``t`` inside a velocity interval
-    longer than ``gap_s`` (a telemetry gap) whose mean is known from the positions: exact at
+    longer than ``gap_s`` and than :data:`GAP_CADENCE_FACTOR` times the interval before it (a
+    telemetry gap) whose mean is known from the positions: exact at
     both ends, the samples' shape in between may miss a turn by ``alpha s (T - s) / 2``
     (``alpha`` as :func:`held_var_increment`'s); 0 elsewhere."""
     nv = int(q[Q_NV])
@@ -200,6 +205,8 @@ def shape_var(q, vbuf, t, gap_s) -> float:
             tp = vbuf[i - 1, VB_T]
             if t <= tp or tq - tp <= gap_s or vbuf[i, VB_HAS_MEAN] == 0.0:
                 return 0.0
+            if i >= 2 and tq - tp <= GAP_CADENCE_FACTOR * (tp - vbuf[i - 2, VB_T]):
+                return 0.0  # the stream's own cadence, not a gap in it
             alpha = max(extrapolation_mps2(q), GAP_ACCEL_MPS2)
             e = 0.5 * alpha * (t - tp) * (tq - t)
             return e * e

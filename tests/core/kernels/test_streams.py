@@ -150,6 +150,28 @@ def test_a_sparse_stream_learns_how_far_its_trend_misses_and_the_prior_fades() -
     assert steady.predicted_displacement(tv, tv + 2.0) == pytest.approx([want2])
 
 
+def test_a_gap_is_an_interval_over_the_age_limit_and_twice_the_one_before() -> None:
+    """Inside a 6 s gap of a 10 Hz stream the path between the samples is uncertain (zero at
+    both ends); a 0.4 Hz stream's own 2.5 s cadence is no gap, its 6 s interval is."""
+    dense = kc.Streams(n=1)
+    for k, t in enumerate([0.0, 0.1, 0.2, 6.2]):
+        dense.append_velocity(t, [1.0])
+        if k:
+            dense.set_interval_mean(t, [1.0])
+    mid = dense.shape_var_m2(3.2)
+    assert mid == pytest.approx((0.5 * 1.0 * 3.0 * 3.0) ** 2)  # alpha >= 1 m/s^2
+    assert dense.shape_var_m2(0.15) == 0.0
+    slow = kc.Streams(n=1)
+    for k, t in enumerate([0.0, 2.5, 5.0, 7.5]):
+        slow.append_velocity(t, [1.0])
+        if k:
+            slow.set_interval_mean(t, [1.0])
+    assert slow.shape_var_m2(6.0) == 0.0
+    slow.append_velocity(13.5, [1.0])
+    slow.set_interval_mean(13.5, [1.0])
+    assert slow.shape_var_m2(10.5) > 0.0
+
+
 def test_a_dense_stream_with_means_from_the_positions_holds_its_latest_sample() -> None:
     """At 10 Hz every interval's mean comes from the positions too, but a prediction past
     the latest sample holds it (no trend, no extrapolation variance, nothing learnt)."""
