@@ -7,6 +7,7 @@
   :mod:`sim.live`).
 * ``emit``: send a scenario as MAVLink (a vehicle and its gimbal or camera) to a pymavlink
   output string and/or a tlog, with the truth as JSON Lines.
+* ``convert``: a tlog's flight as an ArduPilot ``.bin`` or PX4 ``.ulg`` (:mod:`sim.logwriters`).
 * ``inject``: add a synthetic bearing stream toward a fixed local NED point to a real tlog
   (:mod:`sim.inject`), with the truth as JSON Lines.
 """
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -163,6 +165,22 @@ def _target(text: str) -> tuple[float, float, float] | None:
     return None if text == "auto" else _triple(text)
 
 
+def cmd_convert(args: argparse.Namespace) -> int:
+    from sim import logwriters
+
+    out = Path(args.output)
+    try:
+        n = logwriters.convert(Path(args.tlog), out)
+        if args.truth:
+            truth_out = Path(args.truth_output or f"{out}.truth.jsonl")
+            logwriters.convert_truth(Path(args.truth), truth_out, out)
+    except (ValueError, OSError) as exc:
+        print(f"python -m sim convert: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {n} records to {out}")
+    return 0
+
+
 def cmd_inject(args: argparse.Namespace) -> int:
     from sim import inject
 
@@ -285,6 +303,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="1: target 'gimbal'; N > 1: 'gimbalN' (when the log has its own gimbal)",
     )
     inj.set_defaults(func=cmd_inject)
+    cv = sub.add_parser(
+        "convert", help="write a tlog's flight as an ArduPilot .bin or a PX4 .ulg (same data)"
+    )
+    cv.add_argument("tlog", help="the tlog (emitted or injected)")
+    cv.add_argument("output", help="OUT.bin or OUT.ulg")
+    cv.add_argument("--truth", help="the tlog's truth: written beside OUT, targets renamed")
+    cv.add_argument("--truth-output", help="default: OUT.truth.jsonl")
+    cv.set_defaults(func=cmd_convert)
     from sim import live
 
     live.add_parser(sub)

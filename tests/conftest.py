@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -37,3 +38,11 @@ def pair() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
     yield server, client
     client.close()
     server.close()
+
+
+@pytest.fixture(scope="session")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """One emitted gimbal flight as a tlog and its DataFlash and ULog twins."""
+    from flightlogs import make_flight
+
+    return make_flight(tmp_path_factory.mktemp("flight"))

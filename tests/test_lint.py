@@ -27,7 +27,7 @@ def test_ruff_is_clean() -> None:
 ROLES = {
     "core": "maths", "core/kernels": "maths", "geo": "maths",
     "tracking": "messages",
-    "mavlink": "edges", "outputs": "edges", "app": "edges",
+    "mavlink": "edges", "logs": "edges", "outputs": "edges", "app": "edges",
 }  # fmt: skip
 #: The package's own files, and the one module whose job is a file cache: the loader of the
 #: compiled kernels, which clears numba's cache when the kernels' sources changed.

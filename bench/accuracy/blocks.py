@@ -16,6 +16,7 @@ ORDER = (
     "real-logs",
     "real-logs-other",
     "robustness",
+    "formats",
 )
 
 

@@ -52,7 +52,7 @@ from mav_observer.app.replay import replay
 from mav_observer.core.observer import ObserverConfig
 from mav_observer.tracking.tracker import TrackerConfig
 from sim import emitter as em
-from sim import realism, scenarios
+from sim import logwriters, realism, scenarios
 from sim import truth as truth_file
 from sim.inject import split_records
 
@@ -505,6 +505,7 @@ def run_one(
     defaults: bool = False,
     keep_records: bool = False,
     live: bool = False,
+    log_format: str = "tlog",
 ) -> dict:
     """Emit, replay and score one run of a case (a process-pool task); ``defaults``: the
     product's default settings instead of the case's (the noise not told); ``keep_records``:
@@ -530,9 +531,14 @@ def run_one(
         settings = d / "settings.toml"  # what the user writes, read as replay --config does
         settings.write_text(settings_toml(case.settings, case.tracker))
         tc = st.resolve(settings).tracker_config()
-        summary = replay(str(tlog), tracker_config=tc, output_jsonl=out, live=live)
+        source, target = tlog, em.TARGET_OF[case.bearing]
+        if log_format != "tlog":  # the same flight as the autopilot's own log
+            source = d / f"run.{log_format}"
+            logwriters.convert(tlog, source)
+            target = logwriters.TARGET_IN.get((log_format, target), target)
+            t_emit = time.perf_counter() - t_wall
+        summary = replay(str(source), tracker_config=tc, output_jsonl=out, live=live)
         t_replay = time.perf_counter() - t_wall - t_emit
-        target = em.TARGET_OF[case.bearing]
         noise_end = summary.targets[f"{cfg.sysid}/{target}"].noise
         noise_60 = None
         if case_name in ADAPTIVE:  # what was learnt after the first 60 s
@@ -548,7 +554,7 @@ def run_one(
                 .noise
             )
         records = [r for r in read_jsonl(out) if r["target"] == target]
-        truth = truth_file.read(truth_path, target)
+        truth = truth_file.read(truth_path, em.TARGET_OF[case.bearing])
     dt_v = 1.0 / cfg.position_hz
     m = score(
         records,

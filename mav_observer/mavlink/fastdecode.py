@@ -39,7 +39,9 @@ class DecodeError(Exception):
         self.reason = reason
 
 
-def _message_class(name: str, fields: list[str]) -> type:
+def message_class(name: str, fields: list[str]) -> type:
+    """The named tuple class of message ``name`` with ``fields`` (declared order), as this
+    decoder returns it."""
     base = namedtuple(
         f"Fast{name.title().replace('_', '')}", [*fields, "src_system_", "src_component_"]
     )  # type: ignore[misc]
@@ -77,7 +79,7 @@ class _Plan:
         self.unpack = unpacker.unpack
         self.unpack_from = unpacker.unpack_from
         self.size = unpacker.size
-        self.cls = _message_class(name, list(fieldnames))
+        self.cls = message_class(name, list(fieldnames))
         #: the unpacked payload (wire order) to the fields (declared order, arrays as
         #: lists); ``None`` where they are the same
         self.fields: Any = None

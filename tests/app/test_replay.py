@@ -195,8 +195,8 @@ def test_no_bearing_gives_a_clear_nonzero_exit_listing_what_was_found() -> None:
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        (b"", "no MAVLink messages found"),
-        (b"hello, this is not a tlog\n" * 50, "no MAVLink messages found"),
+        (b"", "x.tlog: the file is empty"),
+        (b"hello, this is not a tlog\n" * 50, "x.tlog: no messages found (tlog"),
     ],
 )
 def test_empty_and_foreign_files(tmp_path: Path, content: bytes, message: str) -> None:
@@ -474,3 +474,64 @@ def test_replay_live_publishes_what_the_service_would(tmp_path: Path) -> None:
     api = tmp_path / "api.jsonl"
     rp.replay(log, output_jsonl=api, live=True)
     assert api.read_text() == (tmp_path / "--live.jsonl").read_text()
+
+
+@pytest.mark.parametrize("fmt", ["bin", "ulg"])
+def test_a_dataflash_or_ulog_twin_replays_to_the_tlogs_estimate(tmp_path: Path, fmt: str) -> None:
+    """The same flight as its tlog, an ArduPilot .bin and a PX4 .ulg (``sim convert``): the
+    format is found from the content, and the final estimate is the tlog's."""
+    from sim import logwriters
+
+    sc = scenarios.make("orbit")
+    cfg = EmitterConfig(bearing="gimbal", duration_s=60.0, seed=4, bearing_noise_deg=0.5)
+    tlog = tmp_path / "f.tlog"
+    run(Emitter(sc, cfg), tlog=tlog)
+    twin = tmp_path / "f.log"  # a name that says nothing
+    logwriters.convert(tlog, tmp_path / f"f.{fmt}")
+    (tmp_path / f"f.{fmt}").rename(twin)
+    a = rp.replay(str(tlog))
+    b = rp.replay(str(twin))
+    assert b.log_format == {"bin": "DataFlash", "ulg": "ULog"}[fmt]
+    ta = next(iter(a.targets.values())).final
+    tb = next(iter(b.targets.values())).final
+    assert ta is not None and tb is not None
+    rel_a = np.array(ta.estimate.x_m)
+    rel_b = np.array(tb.estimate.x_m)
+    assert np.linalg.norm(rel_b - rel_a) < 0.002 * np.linalg.norm(rel_a)
+
+
+@pytest.mark.parametrize(
+    ("damage", "says"),
+    [
+        ("truncated", "truncated_tail 1"),
+        ("junk", "resyncs"),
+        ("foreign", "neither a tlog, a DataFlash .bin, a ULog nor raw MAVLink"),
+        ("formats_only", "no messages found (DataFlash"),
+    ],
+)
+def test_a_damaged_dataflash_log_gives_a_clear_message_and_what_was_readable(
+    tmp_path: Path, damage: str, says: str
+) -> None:
+    from sim import logwriters
+
+    sc = scenarios.make("orbit")
+    tlog = tmp_path / "f.tlog"
+    run(Emitter(sc, EmitterConfig(bearing="gimbal", duration_s=30.0, seed=1)), tlog=tlog)
+    good = tmp_path / "good.bin"
+    logwriters.convert(tlog, good)
+    data = good.read_bytes()
+    bad = tmp_path / "bad.bin"
+    if damage == "truncated":
+        bad.write_bytes(data[:-5])
+    elif damage == "junk":
+        bad.write_bytes(data[:5000] + b"\x55" * 333 + data[5000:])
+    elif damage == "foreign":
+        bad.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(2000))
+    else:
+        fmt_only = b"".join(data[i : i + 89] for i in range(0, len(data), 89)
+                            if data[i : i + 3] == b"\xa3\x95\x80")  # fmt: skip
+        bad.write_bytes(fmt_only[:89])
+    proc = _cli("replay", str(bad))
+    out = proc.stdout + proc.stderr
+    assert "Traceback" not in out and says in out and "bad.bin" in out
+    assert proc.returncode == (0 if damage in ("truncated", "junk") else 3)
