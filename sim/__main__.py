@@ -135,6 +135,7 @@ def cmd_emit(args: argparse.Namespace) -> int:
         drop_prob=args.drop_prob,
         latency_s=args.latency_s,
         seed=args.seed,
+        rangefinder_noise_m=args.rangefinder_noise_m,
     )
     em = emitter.Emitter(sc, cfg)
     report = emitter.run(
@@ -265,6 +266,12 @@ def build_parser() -> argparse.ArgumentParser:
     em.add_argument("--drop-prob", type=float, default=0.0)
     em.add_argument("--latency-s", type=float, default=0.0, help="bearing stream latency")
     em.add_argument("--seed", type=int, default=0)
+    em.add_argument(
+        "--rangefinder-noise-m",
+        type=float,
+        default=None,
+        help="a rangefinder on the gimbal: DISTANCE_SENSOR with each bearing, this noise (m)",
+    )
     em.set_defaults(func=cmd_emit)
     inj = sub.add_parser(
         "inject",

@@ -75,6 +75,11 @@ TARGET_OF = {
     "landing_target_local": "landing_target_0",
 }
 AUTOPILOT = 1
+#: The gimbal's rangefinder: MAV_COMP_ID_GIMBAL, MAV_SENSOR_ROTATION_CUSTOM.
+RANGEFINDER_COMPID = 154
+RANGEFINDER_ORIENTATION = 100
+#: The bearings a rangefinder on the gimbal goes with.
+RANGED_BEARINGS = ("gimbal", "gimbal_earth", "mount", "mount_status")
 CAMERA = 100
 ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M = -35.363261, 149.165230, 584.0
 #: ArduPilot's ``LOCATION_SCALING_FACTOR`` (m per 1e-7 deg on its sphere of 6,378,100 m,
@@ -112,6 +117,10 @@ class EmitterConfig:
     Student-t instead, scaled to the same standard deviation ``bearing_noise_deg``: heavy
     tails without separate outliers (3: a per-axis Fisher information twice the Gaussian's,
     its Cramér-Rao bound that of Gaussian noise of ``bearing_noise_deg / sqrt(2)``).
+    ``rangefinder_noise_m``: a laser rangefinder on the gimbal: with each gimbal or mount
+    bearing a DISTANCE_SENSOR (orientation MAV_SENSOR_ROTATION_CUSTOM, from the gimbal's
+    component 154, centimetres) of the true range plus Gaussian noise of this standard
+    deviation (m); ``None``: none.
     """
 
     bearing: str = "gimbal"
@@ -135,6 +144,7 @@ class EmitterConfig:
     t0_unix_s: float = 1_767_225_600.0  # 2026-01-01T00:00:00Z
     boot_at_start_s: float = 120.0  # the autopilot booted this long before the scenario starts
     landing_target_unix_time: bool = False
+    rangefinder_noise_m: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -186,7 +196,9 @@ class Emitter:
         self.config = config
         self.vehicle = vehicle if vehicle is not None else Vehicle(scenario)
         self.rng = np.random.default_rng(config.seed)
-        self._codecs = {comp: codec(config.sysid, comp) for comp in (AUTOPILOT, CAMERA)}
+        self._codecs = {
+            comp: codec(config.sysid, comp) for comp in (AUTOPILOT, CAMERA, RANGEFINDER_COMPID)
+        }
 
     # -- clocks ---------------------------------------------------------------------------
     def boot_ms(self, t: float) -> int:
@@ -373,6 +385,8 @@ class Emitter:
             frames = self._bearing_frames(t, s, los)
             if not frames:
                 continue
+            if cfg.rangefinder_noise_m is not None and cfg.bearing in RANGED_BEARINGS:
+                frames.insert(0, self._range_frame(t, s))
             truth = truth_file.record(
                 t_unix_s=self.unix_s(t + cfg.latency_s),
                 t_boot_s=self.boot_ms(t) / 1000.0,
@@ -389,6 +403,15 @@ class Emitter:
                 yield Emission(
                     t + cfg.latency_s + 1e-5 * i, frame, truth if i == len(frames) - 1 else None
                 )
+
+    def _range_frame(self, t: float, s: VehicleState) -> bytes:
+        r = float(np.linalg.norm(s.rel_pos_ned_m))
+        r += float(self.rng.normal()) * float(self.config.rangefinder_noise_m or 0.0)
+        cm = max(1, min(65534, round(100.0 * r)))
+        msg = mavlink.MAVLink_distance_sensor_message(
+            self.boot_ms(t), 1, 65535, cm, 10, 1, RANGEFINDER_ORIENTATION, 255
+        )
+        return self._pack(msg, RANGEFINDER_COMPID)
 
     def _fov_status(self, t: float) -> bytes:
         cfg = self.config

@@ -15,8 +15,9 @@ emitted or injected tlog, its truth, and its DataFlash and ULog twins describe o
   GPS_GLOBAL_ORIGIN -> the reference of ``vehicle_local_position``; the PX4 field names, a
   subset of their fields.
 
-``rangefinder_m`` gives MNT a ``Dist`` column (a laser rangefinder on the gimbal): the distance
-to the target at each record, from the truth's track.
+A DISTANCE_SENSOR of the gimbal (orientation MAV_SENSOR_ROTATION_CUSTOM) becomes MNT's ``Dist``
+(the mount's own rangefinder, ArduPilot 4.6 on) of the mount record of its time, and PX4's
+``distance_sensor`` topic.
 """
 
 from __future__ import annotations
@@ -101,6 +102,11 @@ ULOG_TOPICS = {
         ("uint8_t", "xy_reset_counter"),
     ],
     "vehicle_attitude": [("uint64_t", "timestamp"), ("float[4]", "q")],
+    "distance_sensor": [
+        ("uint64_t", "timestamp"), ("uint32_t", "device_id"), ("float", "min_distance"),
+        ("float", "max_distance"), ("float", "current_distance"), ("float", "variance"),
+        ("uint8_t", "orientation"),
+    ],
     "sensor_combined": [
         ("uint64_t", "timestamp"), ("float[3]", "gyro_rad"), ("uint32_t", "gyro_integral_dt"),
         ("int32_t", "accelerometer_timestamp_relative"), ("float[3]", "accelerometer_m_s2"),
@@ -154,7 +160,7 @@ class ULogWriter:
 
 _WANTED = (
     "LOCAL_POSITION_NED", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_ORIENTATION",
-    "GPS_GLOBAL_ORIGIN", "GLOBAL_POSITION_INT",
+    "GPS_GLOBAL_ORIGIN", "GLOBAL_POSITION_INT", "DISTANCE_SENSOR",
 )  # fmt: skip
 _YAW_IN_EARTH = 64
 #: The target a converted log's reader names, where it differs: (format, the tlog's target).
@@ -224,6 +230,23 @@ def _on_autopilot_clock(messages: list[tuple[float, Any]]) -> list[tuple[float, 
     return out
 
 
+def _gimbal_ranges(messages: list[tuple[float, Any]]) -> Callable[[float], float] | None:
+    """The gimbal's DISTANCE_SENSOR (orientation MAV_SENSOR_ROTATION_CUSTOM) nearest a boot
+    time (s), within 50 ms (NaN: none); ``None`` when the flight has none."""
+    got = [(m.time_boot_ms * 1e-3, m.current_distance * 0.01) for _, m in messages
+           if m.get_type() == "DISTANCE_SENSOR" and m.orientation == 100]  # fmt: skip
+    if not got:
+        return None
+    tr, rr = np.array(got).T
+
+    def at(tb: float) -> float:
+        k = int(np.clip(np.searchsorted(tr, tb), 1, len(tr) - 1)) if len(tr) > 1 else 0
+        best = min((k - 1, k) if len(tr) > 1 else (0,), key=lambda i: abs(tr[i] - tb))
+        return float(rr[best]) if abs(tr[best] - tb) <= 0.05 else math.nan
+
+    return at
+
+
 def convert(
     tlog: Path,
     out: Path,
@@ -246,6 +269,8 @@ def convert(
         if kind == ".bin":
             df = DataFlashWriter(fh)
             next_imu_us = None
+            if rangefinder is None:
+                rangefinder = _gimbal_ranges(messages)
             for _, m in messages:
                 tb = getattr(m, "time_boot_ms", None)
                 if imu_hz > 0 and tb is not None:
@@ -288,6 +313,8 @@ def _write_df(
     if mtype == "GPS_GLOBAL_ORIGIN":
         df.write("ORGN", (0, 0, m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3))
         return 1
+    if mtype == "DISTANCE_SENSOR":
+        return 0  # a gimbal's: MNT's Dist
     t_us = m.time_boot_ms * 1000
     if mtype == "GLOBAL_POSITION_INT":
         df.write("POS", (t_us, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3, 0.0, 0.0))
@@ -324,6 +351,11 @@ def _write_ulog(ul: ULogWriter, m: Any, origin: tuple[float, float, float] | Non
     mtype = m.get_type()
     if mtype in ("MOUNT_ORIENTATION", "GLOBAL_POSITION_INT"):
         return 0  # PX4 logs its mount as the gimbal's attitude; its origin is the reference
+    if mtype == "DISTANCE_SENSOR":
+        ul.write("distance_sensor", (m.time_boot_ms * 1000, 0, m.min_distance * 0.01,
+                                     m.max_distance * 0.01, m.current_distance * 0.01, 0.0,
+                                     m.orientation))  # fmt: skip
+        return 1
     t_us = m.time_boot_ms * 1000
     if mtype == "LOCAL_POSITION_NED":
         lat, lon, alt = origin if origin is not None else (0.0, 0.0, 0.0)

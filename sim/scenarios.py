@@ -170,6 +170,27 @@ def orbit(
     )
 
 
+def hover(
+    rel_pos_ned_m: Vec = (20.0, 10.0, 10.0),
+    wind_ned_mps: Vec = (2.0, -1.0, 0.0),
+    duration_s: float = 60.0,
+) -> Scenario:
+    """A vehicle hovering still, the target at ``rel_pos_ned_m`` from it; its measured velocity
+    misses ``wind_ned_mps``. Bearings alone cannot tell the range (no motion); a range
+    measured with them can."""
+    x0 = np.asarray(rel_pos_ned_m, dtype=float)
+    wind = np.asarray(wind_ned_mps, dtype=float)
+    return Scenario(
+        name="hover",
+        n=3,
+        duration_s=duration_s,
+        a_mps=-wind,
+        x_of_t=lambda t: np.tile(x0, (len(t), 1)),
+        xdot_of_t=lambda t: np.zeros((len(t), 3)),
+        description=f"hover, target at {x0.tolist()} m, wind {wind.tolist()}",
+    )
+
+
 def moving_target(
     target_vel_ned_mps: Vec = (1.5, 0.5, 0.0),
     wind_ned_mps: Vec = (0.0, 0.0, 0.0),
@@ -367,6 +388,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "planar": planar,
     "figure8": figure8,
     "weave": weave,
+    "hover": hover,
 }
 
 

@@ -154,7 +154,16 @@ def bank_call(
                 bank.predict(fs[r], fp[r], bs[r], bp, dx[r], h, q_x)
             if op != 1:
                 bank.update(
-                    fs[r], fp[r], logw[r], bs[r], bp, y[r], h, walk_hold, walk_hold_nats, 0.0,
+                    fs[r],
+                    fp[r],
+                    logw[r],
+                    bs[r],
+                    bp,
+                    y[r],
+                    h,
+                    walk_hold,
+                    walk_hold_nats,
+                    0.0,
                     wk[r],
                 )
         elif op == 4:
@@ -495,7 +504,7 @@ class Streams:
         self.n = n
         self.q = np.zeros(L.Q_COUNT)
         self.vbuf = np.zeros((cap, 2 + 2 * n))
-        self.bbuf = np.zeros((cap, 1 + n))
+        self.bbuf = np.zeros((cap, 3 + n))
         self.linear = linear
         self.max_buffer = max_buffer
         self.mba, self.mva = max_bearing_age_s, max_velocity_age_s
@@ -629,6 +638,7 @@ def monitor_call(
             a[14],
             a[15],
             a[16],
+            a[17] != 0.0,
         )
         out[0], out[1] = status, since
     return 0.0
@@ -704,6 +714,7 @@ def next_status(
     excitation_min: float,
     converged_tol: float,
     sd_rel: float = 0.0,
+    ranged: bool = False,
 ) -> tuple[int, float]:
     """:func:`mav_observer.core.kernels.monitor.next_status` (an age NaN: no sample)."""
     args = np.array(
@@ -725,6 +736,7 @@ def next_status(
             excitation_min,
             converged_tol,
             sd_rel,
+            ranged,
         ],
         dtype=float,
     )

@@ -17,6 +17,7 @@ ORDER = (
     "real-logs-other",
     "robustness",
     "formats",
+    "range",
 )
 
 

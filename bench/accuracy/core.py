@@ -130,6 +130,7 @@ def crlb(
     prior_info: float = 1e-9,
     gm_std_mps: float = 0.0,
     gm_tau_s: float = math.inf,
+    range_sigma_m: float = 0.0,
 ) -> np.ndarray:
     """Posterior Cramér-Rao bound of the position, ``sqrt(trace(J^-1)_xx)`` (m) at every
     sample (T,), for the state ``[x, a]`` with ``x' = v + a + w`` (``w`` white of intensity
@@ -145,7 +146,9 @@ def crlb(
 
     With ``gm_std_mps > 0`` the velocity error also has a first-order Gauss-Markov part
     (stationary standard deviation ``gm_std_mps`` per axis, correlation time ``gm_tau_s``),
-    and the bound is :func:`crlb_gauss_markov`'s (the state augmented with it).
+    and the bound is :func:`crlb_gauss_markov`'s (the state augmented with it). With
+    ``range_sigma_m > 0`` every bearing comes with a measured range of that noise: its
+    information ``u u^T / sigma_r^2`` (``u = x / |x|``) is added to the bearing's.
     """
     if not sigma_rad > 0.0:
         raise ValueError("the bound needs a bearing noise > 0")
@@ -153,6 +156,9 @@ def crlb(
         return crlb_gauss_markov(t, x, sigma_rad, q_x, gm_std_mps, gm_tau_s, prior_info)
     n = x.shape[1]
     info = _bearing_info(x, sigma_rad)
+    if range_sigma_m > 0.0:
+        u = x / np.linalg.norm(x, axis=1)[:, None]
+        info = info + u[:, :, None] * u[:, None, :] / range_sigma_m**2
     j = np.eye(2 * n) * prior_info
     out = np.empty(len(t))
     eye = np.eye(n)

@@ -115,6 +115,8 @@ class E2ECase:
         if gm > 0.0:
             out["gm_std_mps"] = gm
             out["gm_tau_s"] = float(self.realism.get("velocity_gm_tau_s", 60.0))
+        if self.emitter.get("rangefinder_noise_m"):
+            out["range_sigma_m"] = float(self.emitter["rangefinder_noise_m"])
         return out
 
     @property
@@ -140,6 +142,7 @@ OWN_COMPONENT = {
     "component_clock_drift_ppm": 40.0,
 }
 FAST = {"attitude_hz": 50.0, "bearing_hz": 25.0, "position_hz": 10.0}
+RANGED_RATES = {"attitude_hz": 50.0, "bearing_hz": 10.0, "position_hz": 10.0}
 TOLD_05 = {"bearing_noise_deg": 0.5, "velocity_noise_mps": 0.0, "bias_walk_mps_per_sqrt_s": 0.0}
 B05 = {"bearing_noise_deg": 0.5}
 #: A velocity error that wanders: 0.1 m/s Gauss-Markov over 60 s plus a constant.
@@ -337,6 +340,24 @@ CASES: dict[str, E2ECase] = {
             **B05,
             outlier_prob=0.2,
         ),
+        # a rangefinder on the gimbal: 0.3 m, told (tracker.range_noise_m)
+        *(
+            E2ECase(
+                f"range_{sc}",
+                f"gimbal at 10 Hz with a 0.3 m rangefinder, {what}",
+                sc,
+                "gimbal",
+                emitter={**RANGED_RATES, **B05, "rangefinder_noise_m": 0.3},
+                realism={"jitter_s": 0.003},
+                tracker={"range_noise_m": 0.3},
+                settings=TOLD_05,
+            )
+            for sc, what in (
+                ("hover", "hovering still (no motion at all), the target 24.5 m away"),
+                ("figure8", "figure-8"),
+                ("orbit", "orbit"),
+            )
+        ),
     )
 }
 HEADLINE = CASES_HEADLINE = (
@@ -357,6 +378,9 @@ ADAPTIVE = (
     "outliers_5pct",
     "outliers_20pct",
 )
+#: A rangefinder on the gimbal (its range fused with each bearing): run by name with
+#: ``--cases`` or by :mod:`bench.accuracy.ranged`, which writes their block.
+RANGED = ("range_hover", "range_figure8", "range_orbit")
 #: The blocks of ``docs/accuracy.md`` this bench writes.
 BLOCK, BLOCK_DEFAULTS, BLOCK_ADAPTIVE = "end-to-end", "end-to-end-defaults", "end-to-end-adaptive"
 
@@ -397,6 +421,7 @@ def score(
     t0_boot_s: float,
     gm_std_mps: float = 0.0,
     gm_tau_s: float = math.inf,
+    range_sigma_m: float = 0.0,
 ) -> dict[str, float]:
     """Metrics of one run: the records of its target against its truth (both keyed by the
     autopilot clock, ``t_boot_s``); the bound is that of the true noise (``sigma_rad``,
@@ -420,7 +445,10 @@ def score(
     rel = np.sqrt(e2) / r_true
     t_steady = t0_boot_s + (1.0 - STEADY_FRACTION) * duration_s
     sel = t >= t_steady
-    bound = core.crlb(tt, xt, sigma_rad, q_x, gm_std_mps=gm_std_mps, gm_tau_s=gm_tau_s)
+    bound = core.crlb(
+        tt, xt, sigma_rad, q_x, gm_std_mps=gm_std_mps, gm_tau_s=gm_tau_s,
+        range_sigma_m=range_sigma_m,
+    )  # fmt: skip
     bsel = tt >= t_steady
     crlb_rms = math.sqrt(float(np.mean(bound[bsel] ** 2)))
     rms = math.sqrt(float(np.mean(e2[sel])))
@@ -451,6 +479,10 @@ def score(
         "t10_s": t10,
         "converged_share": float(
             np.mean([r["status"] == "converged" for r, k in zip(records, inside, strict=True) if k])
+        ),
+        "first_converged_s": next(
+            (r["t_boot_s"] - records[0]["t_boot_s"] for r in records if r["status"] == "converged"),
+            math.inf,
         ),
     }
 
@@ -913,7 +945,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = p.parse_args(argv)
     if args.cases is None:
-        args.cases = list(ADAPTIVE) if args.adaptive else [c for c in CASES if c not in ADAPTIVE]
+        args.cases = (
+            list(ADAPTIVE)
+            if args.adaptive
+            else [c for c in CASES if c not in ADAPTIVE and c not in RANGED]
+        )
     if args.from_json:
         doc = json.loads(args.from_json.read_text())
         if "results" not in doc:  # a bare {case: results} file

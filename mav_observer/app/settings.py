@@ -179,6 +179,16 @@ def _tracker_schema() -> dict[str, tuple[Any, Callable[[object], Any], str]]:
             tc("max_camera_attitude_age_s", num),
             "",
         ),
+        "range_noise_m": (
+            d.range_noise_m,
+            tc("range_noise_m", num),
+            "the noise of a range measured with a bearing, when its message gives none (m)",
+        ),
+        "max_range_age_s": (
+            d.max_range_age_s,
+            tc("max_range_age_s", num),
+            "a gimbal's range is fused with a bearing at most this far from its time (s)",
+        ),
         "attitude_wait_s": (
             d.attitude_wait_s,
             tc("attitude_wait_s", num),
@@ -500,6 +510,8 @@ class Settings:
                 max_camera_attitude_age_s=t["max_camera_attitude_age_s"],
                 attitude_wait_s=t["attitude_wait_s"],
                 attitude_extrapolate_s=t["attitude_extrapolate_s"],
+                range_noise_m=t["range_noise_m"],
+                max_range_age_s=t["max_range_age_s"],
                 publish=t["publish"],
                 local_frame=t["local_frame"],
                 sysids=tuple(t["sysids"]) or None,

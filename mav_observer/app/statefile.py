@@ -23,7 +23,7 @@ from typing import Any
 
 from mav_observer.errors import StateError
 
-SCHEMA = 1
+SCHEMA = 2  # 2: each buffered bearing carries its measured range
 KIND = "mav-observer state"
 
 

@@ -95,6 +95,7 @@ class BiasObserver:
         self._s_out = np.zeros(n2)
         self._p_out = np.zeros((n2, n2))
         self._none = np.zeros(self._n)  # (an input an operation does not read)
+        self._no_range = np.array([math.nan, 0.0])  # a bearing without a measured range
         self._live_row = self._st.out[-1]
         n, x0 = self._n, L.E_FIXED
         self._slices = tuple(slice(x0 + k * n, x0 + (k + 1) * n) for k in range(4))
@@ -400,10 +401,13 @@ class BiasObserver:
         if code:
             self._take_rows(code)
 
-    def _bearing(self, t: float, y: np.ndarray, live: bool) -> None:
+    def _bearing(
+        self, t: float, y: np.ndarray, live: bool, range_m: float | None, range_std_m: float
+    ) -> None:
         k = self._k
         op = k.OP_BEARING_LIVE if live else k.OP_BEARING
-        code = k.run(op, self._buf, t, y, y)
+        w = self._no_range if range_m is None else np.array([range_m, range_std_m**2])
+        code = k.run(op, self._buf, t, y, w)
         if code < 0:
             self._fail(code, "bearing", t)
         if code:
@@ -431,7 +435,7 @@ class BiasObserver:
         y = sample.y
         if y.shape[0] != self._n:
             self._check_dim(y.shape[0], "bearing y", sample.t_s)
-        self._bearing(sample.t_s, np.array(y), True)
+        self._bearing(sample.t_s, np.array(y), True, sample.range_m, sample.range_std_m)
         return self._live()
 
     def update_velocity_values(
@@ -453,17 +457,21 @@ class BiasObserver:
         mean = None if interval_mean_mps is None else np.array(interval_mean_mps, dtype=float)
         self._velocity(float(t_s), np.array(v_mps, dtype=float), mean)
 
-    def update_bearing_values(self, t_s: float, y: Sequence[float]) -> Estimate:
+    def update_bearing_values(
+        self, t_s: float, y: Sequence[float], range_m: float | None = None, range_std_m: float = 1.0
+    ) -> Estimate:
         """:meth:`update_bearing` for a caller that already checked the sample (finite
-        floats, unit length, the observer's dimension)."""
-        self._bearing(float(t_s), np.array(y, dtype=float), True)
+        floats, unit length, the observer's dimension; a range positive and finite)."""
+        self._bearing(float(t_s), np.array(y, dtype=float), True, range_m, range_std_m)
         return self._live()
 
-    def add_bearing_values(self, t_s: float, y: Sequence[float]) -> None:
+    def add_bearing_values(
+        self, t_s: float, y: Sequence[float], range_m: float | None = None, range_std_m: float = 1.0
+    ) -> None:
         """Accept a checked bearing (as :meth:`update_bearing_values`) without a live
         estimate at its time: with ``committed=True`` its estimate comes, with those of the
         other bearings, from :meth:`take_committed` once the velocity around it is known."""
-        self._bearing(float(t_s), np.array(y, dtype=float), False)
+        self._bearing(float(t_s), np.array(y, dtype=float), False, range_m, range_std_m)
 
     def take_committed(self) -> list[Estimate]:
         """The estimates at the bearing times the state has been committed through since the

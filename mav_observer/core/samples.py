@@ -97,10 +97,16 @@ class BearingSample:
     A ``y`` whose norm is within :data:`BEARING_NORM_TOL` of 1 is normalised; zero-length or
     farther-from-unit vectors are rejected. Use :meth:`from_vector` to build a bearing from
     any non-zero direction vector (a line of sight in camera units, say).
+
+    ``range_m``: the distance to the target measured with the bearing (a rangefinder on the
+    gimbal, m; positive and finite), ``range_std_m`` its standard deviation (m): the target is
+    then observable without any motion.
     """
 
     t_s: float
     y: np.ndarray
+    range_m: float | None = None
+    range_std_m: float = 1.0
 
     def __post_init__(self) -> None:
         t = _check_time(self.t_s)
@@ -118,6 +124,15 @@ class BearingSample:
             y.setflags(write=False)
         object.__setattr__(self, "t_s", t)
         object.__setattr__(self, "y", y)
+        if self.range_m is not None:
+            r, sd = float(self.range_m), float(self.range_std_m)
+            if not (math.isfinite(r) and r > 0.0 and math.isfinite(sd) and sd > 0.0):
+                raise InvalidSampleError(
+                    f"bearing at t_s={t}: range_m={self.range_m} and range_std_m="
+                    f"{self.range_std_m} must be positive and finite"
+                )
+            object.__setattr__(self, "range_m", r)
+            object.__setattr__(self, "range_std_m", sd)
 
     @classmethod
     def from_vector(cls, t_s: float, direction: object) -> BearingSample:

@@ -117,7 +117,7 @@ def new_state(config: ObserverConfig, committed: bool = False) -> ObserverState:
         L.A_FS: (hyp + 3, 2 * n),
         L.A_FP: (hyp + 3, 2 * n, 2 * n),
         L.A_VBUF: (cap, 2 + 2 * n),
-        L.A_BBUF: (cap, 1 + n),
+        L.A_BBUF: (cap, 3 + n),  # t, y, range (NaN: none) and its variance
         L.A_WIN: (config.window_buckets + 2, 3 + n * n + 2 * n),
         L.A_OUT: (cap + 2, L.E_FIXED + 4 * n),
         L.A_WK: (_scratch_offsets(n, hyp, cap)[2],),

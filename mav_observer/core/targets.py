@@ -99,12 +99,15 @@ class Targets:
         t_s: float,
         y: Sequence[float],
         latest_velocity: tuple[float, Sequence[float]] | None,
+        range_m: float | None = None,
+        range_std_m: float = 1.0,
     ) -> tuple[Estimate | None, bool]:
         """Give ``target``'s observer the unit bearing ``y`` (NED) at ``t_s``, creating it
         (started from ``latest_velocity``, ``(t_s, v)``) on its first bearing. Returns the
         estimate (``None`` while the observer has no velocity yet, and always with
         ``committed``: see :meth:`take_committed`) and whether the observer is new; raises
-        :class:`InvalidSampleError` when the observer refuses the bearing."""
+        :class:`InvalidSampleError` when the observer refuses the bearing. ``range_m``: the
+        distance measured with the bearing (m, standard deviation ``range_std_m``)."""
         entry = self._obs.get(target)
         new = entry is None
         if entry is None:
@@ -113,9 +116,9 @@ class Targets:
                 obs.update_velocity_values(*latest_velocity)
             self._obs[target] = entry = (obs, source)
         if self.committed:
-            entry[0].add_bearing_values(t_s, y)
+            entry[0].add_bearing_values(t_s, y, range_m, range_std_m)
             return None, new
-        est = entry[0].update_bearing_values(t_s, y)
+        est = entry[0].update_bearing_values(t_s, y, range_m, range_std_m)
         return (est if entry[0].started else None), new
 
     def take_committed(self, *, end: bool = False) -> list[tuple[str, str, Estimate]]:

@@ -12,7 +12,9 @@ On the autopilot's boot clock (``TimeUS``, ``TimeMS`` on old logs):
 * the camera mount (ArduPilot 4.3 on): ``MNT`` ``Roll`` and ``Pitch`` against the horizon,
   ``YawB`` against the vehicle's heading, ``YawE`` against north (degrees; the measured
   angles, the demanded ones ``D*`` when a mount reports none), one mount instance (the
-  lowest ``I``) -> MOUNT_ORIENTATION; ``Dist`` (a rangefinder on the mount, m) -> its range.
+  lowest ``I``) -> MOUNT_ORIENTATION; ``Dist`` (the mount's own rangefinder, m; NaN: none) ->
+  DISTANCE_SENSOR of orientation MAV_SENSOR_ROTATION_CUSTOM (the gimbal's range, fused with
+  the bearing of the same record).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ from mav_observer.logs.messages import Stream, maker
 
 #: The EKF records that carry the local position and velocity, newest estimator first.
 POSITION_RECORDS = ("XKF1", "NKF1", "EKF1")
+#: MAVLink's DISTANCE_SENSOR orientation of a sensor not fixed to the body (a gimbal's).
+MAV_SENSOR_ROTATION_CUSTOM = 100
 
 
 def _one_instance(
@@ -213,4 +217,19 @@ def _mount(log: DataFlashLog, notes: list[str]) -> list[Stream]:
         return make(time_boot_ms=ms[i], roll=roll[i], pitch=pitch[i], yaw=yaw_b[i],
                     yaw_absolute=yaw_e[i] if math.isfinite(yaw_e[i]) else nan)  # fmt: skip
 
-    return [Stream(t, 3, build)]
+    out = [Stream(t, 4, build)]
+    if "Dist" in c:  # the mount's own rangefinder (NaN: none): its range, before the angles
+        dist_cm = np.round(c["Dist"].astype(float) * 100.0)
+        ok = (np.isfinite(dist_cm) & (dist_cm > 0) & (dist_cm < 65535)).tolist()
+        cm = np.where(np.isfinite(dist_cm), dist_cm, 0).astype(np.int64).tolist()
+        make_d = maker("DISTANCE_SENSOR")
+
+        def build_d(i: int) -> Any:
+            if not ok[i]:
+                return None
+            return make_d(time_boot_ms=ms[i], min_distance=1, max_distance=65535,
+                          current_distance=cm[i], orientation=MAV_SENSOR_ROTATION_CUSTOM,
+                          covariance=255)  # fmt: skip
+
+        out.append(Stream(t, 3, build_d))
+    return out

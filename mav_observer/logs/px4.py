@@ -31,8 +31,11 @@ from mav_observer.logs.messages import Stream, maker
 
 TOPICS = (
     "vehicle_local_position", "vehicle_attitude", "gimbal_device_attitude_status",
-    "mount_orientation", "landing_target_pose",
+    "mount_orientation", "landing_target_pose", "distance_sensor",
 )  # fmt: skip
+#: ``distance_sensor``'s orientation of a sensor not fixed to the body (a gimbal's):
+#: PX4's ROTATION_CUSTOM, MAVLink's MAV_SENSOR_ROTATION_CUSTOM.
+ROTATION_CUSTOM = 100
 #: The line of the logger's topic file that records the gimbal's attitude.
 GIMBAL_TOPIC_LINE = "gimbal_device_attitude_status 0"
 MAV_FRAME_LOCAL_NED = 1
@@ -91,6 +94,9 @@ def streams(ulog: Any, notes: list[str]) -> list[Stream]:
     lt = _topic(ulog, "landing_target_pose")
     if lt is not None:
         out.append(_landing_target(lt))
+    for d in ulog.data_list:  # every instance: one of them may be on the gimbal
+        if d.name == "distance_sensor" and len(d.data.get("timestamp", ())):
+            out.append(_distance(d.data))
     if gimbal is None and mount is None and lt is None:
         notes.append(
             "no gimbal_device_attitude_status, mount_orientation or landing_target_pose: "
@@ -146,7 +152,7 @@ def _gimbal(g: dict[str, np.ndarray[Any, Any]]) -> Stream:
     dev = _arr(g, "gimbal_device_id", 0).astype(int).tolist()
     ms = (t // 1000).tolist()
     make = maker("GIMBAL_DEVICE_ATTITUDE_STATUS")
-    return Stream(t, 3, lambda i: make(
+    return Stream(t, 4, lambda i: make(
         time_boot_ms=ms[i], flags=flags[i], q=[q[0][i], q[1][i], q[2][i], q[3][i]],
         failure_flags=fail[i], delta_yaw=dyaw[i], delta_yaw_velocity=math.nan,
         gimbal_device_id=dev[i]))  # fmt: skip
@@ -158,8 +164,31 @@ def _mount(m: dict[str, np.ndarray[Any, Any]]) -> Stream:
                         for k in range(3))  # fmt: skip
     ms = (t // 1000).tolist()
     make = maker("MOUNT_ORIENTATION")
-    return Stream(t, 3, lambda i: make(time_boot_ms=ms[i], roll=roll[i], pitch=pitch[i],
+    return Stream(t, 4, lambda i: make(time_boot_ms=ms[i], roll=roll[i], pitch=pitch[i],
                                        yaw=yaw[i], yaw_absolute=math.nan))  # fmt: skip
+
+
+def _distance(ds: dict[str, np.ndarray[Any, Any]]) -> Stream:
+    """``distance_sensor`` of orientation ROTATION_CUSTOM (a rangefinder on the gimbal) ->
+    DISTANCE_SENSOR (centimetres; its variance as the covariance, cm^2); the others (a downward
+    rangefinder) are not a target's range."""
+    t = ds["timestamp"].astype(np.int64)
+    on_gimbal = (_arr(ds, "orientation", 0) == ROTATION_CUSTOM).tolist()
+    cm = np.round(100.0 * _arr(ds, "current_distance").astype(float))
+    lo = np.round(100.0 * _arr(ds, "min_distance", 0.0).astype(float))
+    hi = np.round(100.0 * _arr(ds, "max_distance", 655.0).astype(float))
+    var = 1e4 * _arr(ds, "variance", 0.0).astype(float)
+    cov = np.where((var > 0) & (var < 255), np.round(var), 255).astype(np.int64).tolist()
+    ok = (np.isfinite(cm) & (cm > 0) & (cm < 65535)).tolist()
+    cm_l = np.where(np.isfinite(cm), cm, 0).astype(np.int64).tolist()
+    lo_l = np.clip(np.nan_to_num(lo), 0, 65535).astype(np.int64).tolist()
+    hi_l = np.clip(np.nan_to_num(hi, nan=65535), 0, 65535).astype(np.int64).tolist()
+    ms = (t // 1000).tolist()
+    make = maker("DISTANCE_SENSOR")
+    return Stream(t, 3, lambda i: make(
+        time_boot_ms=ms[i], min_distance=lo_l[i], max_distance=hi_l[i],
+        current_distance=cm_l[i], orientation=ROTATION_CUSTOM, covariance=cov[i],
+    ) if on_gimbal[i] and ok[i] else None)  # fmt: skip
 
 
 def _landing_target(lt: dict[str, np.ndarray[Any, Any]]) -> Stream:

@@ -328,4 +328,5 @@ WIRE = {
     265: ('MOUNT_ORIENTATION', ('time_boot_ms', 'roll', 'pitch', 'yaw', 'yaw_absolute'), '<Iffff', (0, 1, 2, 3, 4), (1, 1, 1, 1, 1), 26, False),
     158: ('MOUNT_STATUS', ('target_system', 'target_component', 'pointing_a', 'pointing_b', 'pointing_c', 'mount_mode'), '<iiiBBB', (3, 4, 0, 1, 2, 5), (1, 1, 1, 1, 1, 1), 134, False),
     149: ('LANDING_TARGET', ('time_usec', 'target_num', 'frame', 'angle_x', 'angle_y', 'distance', 'size_x', 'size_y', 'x', 'y', 'z', 'q', 'type', 'position_valid'), '<QfffffBBfff4fBB', (0, 6, 7, 1, 2, 3, 4, 5, 8, 9, 10, 11, 12, 13), (1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 4, 1, 1), 200, False),
+    132: ('DISTANCE_SENSOR', ('time_boot_ms', 'min_distance', 'max_distance', 'current_distance', 'type', 'id', 'orientation', 'covariance', 'horizontal_fov', 'vertical_fov', 'quaternion', 'signal_quality'), '<IHHHBBBBff4fB', (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11), (1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 4, 1), 85, False),
 }

@@ -26,6 +26,12 @@ if TYPE_CHECKING:
 log = logging.getLogger("mav_observer.tracking.tracker")
 #: A vehicle position further than this (s) from a landing target's time is not used.
 POSITION_MAX_AGE_S = 1.0
+#: The bearing messages of a gimbal or mount: a rangefinder on the gimbal measures along them.
+GIMBAL_SOURCES = frozenset(("GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_ORIENTATION", "MOUNT_STATUS"))
+#: DISTANCE_SENSOR's orientation of a sensor not fixed to the body (a gimbal's).
+MAV_SENSOR_ROTATION_CUSTOM = 100
+#: MAVLink's gimbal components (MAV_COMP_ID_GIMBAL, MAV_COMP_ID_GIMBAL2 .. 6).
+GIMBAL_COMPIDS = frozenset((154, 171, 172, 173, 174, 175))
 
 
 class BearingReaders:
@@ -163,9 +169,7 @@ class BearingReaders:
         if "mount" in self.enabled:
             self._bearing(veh, "mount", "MOUNT_ORIENTATION", tb, t, direction, out)
 
-    def _on_mount_status(
-        self, veh: Vehicle, t: float, msg: Any, out: list[EstimateRecord]
-    ) -> None:
+    def _on_mount_status(self, veh: Vehicle, t: float, msg: Any, out: list[EstimateRecord]) -> None:
         tb = self._untimed(veh, t)
         needs = self.config.mount_status_yaw == "vehicle"
         self._when_attitude(veh, tb, t, msg, out, self._mount_status_at, needs)
@@ -238,6 +242,23 @@ class BearingReaders:
             veh, "camera", "CAMERA_TRACKING_IMAGE_STATUS", tb, t, mat_vec(r_cam, ray), out
         )
 
+    def _on_distance_sensor(
+        self, veh: Vehicle, t: float, msg: Any, out: list[EstimateRecord]
+    ) -> None:
+        """A rangefinder on the gimbal (a gimbal component's, or of orientation
+        MAV_SENSOR_ROTATION_CUSTOM): its range waits for the gimbal's next bearing. Others (a
+        downward rangefinder of the vehicle) are not a target's range and are left alone."""
+        comp = msg.get_srcComponent()
+        if msg.orientation != MAV_SENSOR_ROTATION_CUSTOM and comp not in GIMBAL_COMPIDS:
+            return
+        d, lo, hi = msg.current_distance, msg.min_distance, msg.max_distance
+        if not (d > 0 and lo <= d <= hi):
+            raise Skip("range_out_of_bounds", f"DISTANCE_SENSOR {d} cm outside [{lo}, {hi}] cm")
+        tb = self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+        cov = msg.covariance  # cm^2; 0 and 255: unknown
+        sd = math.sqrt(cov) * 0.01 if 0 < cov < 255 else self.config.range_noise_m
+        veh.gimbal_range = (tb, d * 0.01, sd)
+
     def _on_landing_target(
         self, veh: Vehicle, t: float, msg: Any, out: list[EstimateRecord]
     ) -> None:
@@ -268,4 +289,8 @@ class BearingReaders:
             vehicle_pos_ned=pos,
             sensor=self._sensor,
         )
-        self._bearing(veh, f"landing_target_{msg.target_num}", "LANDING_TARGET", tb, t, los, out)
+        dist = getattr(msg, "distance", 0.0)
+        rng = dist if math.isfinite(dist) and dist > 0.0 else None  # 0: not measured
+        self._bearing(
+            veh, f"landing_target_{msg.target_num}", "LANDING_TARGET", tb, t, los, out, rng
+        )

@@ -42,6 +42,11 @@ class TrackerConfig:
       a dense attitude stream (50 ms or less between samples) does not wait: the attitude is
       extrapolated by its rates at once (no latency added live; at 1 rad/s^2 of yaw
       acceleration 25 ms of extrapolation is 0.02 deg off). 0: always wait.
+    * ``range_noise_m``: the standard deviation (m) of a range measured with a bearing (a laser
+      rangefinder on the gimbal: DISTANCE_SENSOR from the gimbal, DataFlash ``MNT.Dist``,
+      LANDING_TARGET ``distance``) when the message gives none.
+    * ``max_range_age_s``: a gimbal's range is fused with the gimbal or mount bearing at most
+      this far from its time (s), each range once.
     * ``sysids``: only these vehicles (``None``: all).
     * ``restore_max_gap_s``: a saved observer older than this (vehicle time) is not restored
       (:meth:`~mav_observer.tracking.tracker.Tracker.restore`).
@@ -72,6 +77,8 @@ class TrackerConfig:
     max_camera_attitude_age_s: float = 0.5
     attitude_wait_s: float = 0.3
     attitude_extrapolate_s: float = 0.025
+    range_noise_m: float = 1.0
+    max_range_age_s: float = 0.1
     sysids: tuple[int, ...] | None = None
     restore_max_gap_s: float = 600.0
     observer: ObserverConfig = field(default_factory=ObserverConfig)
@@ -101,7 +108,8 @@ class TrackerConfig:
             v = getattr(self, name)
             if v is not None and not (isinstance(v, (int, float)) and 0.0 < v < 180.0):
                 raise ConfigError(f"{name} must be in (0, 180) degrees, got {v!r}")
-        for name in ("max_attitude_age_s", "max_camera_attitude_age_s", "restore_max_gap_s"):
+        for name in ("max_attitude_age_s", "max_camera_attitude_age_s", "restore_max_gap_s",
+                     "range_noise_m", "max_range_age_s"):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
                 raise ConfigError(f"{name} must be a finite number > 0, got {v!r}")
@@ -128,6 +136,7 @@ class TrackerConfig:
         """Message ids the tracker uses with these sources (for selective decoding)."""
         names = {"LOCAL_POSITION_NED", "ATTITUDE", "ATTITUDE_QUATERNION", "HEARTBEAT"}
         names |= {"GPS_GLOBAL_ORIGIN", "HOME_POSITION", "GLOBAL_POSITION_INT"}  # the origin
+        names.add("DISTANCE_SENSOR")  # a rangefinder on the gimbal
         en = self.enabled()
         if en & {"gimbal", "camera"}:
             names.add("GIMBAL_DEVICE_ATTITUDE_STATUS")

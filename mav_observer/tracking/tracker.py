@@ -49,7 +49,7 @@ from mav_observer.mavlink import signing
 from mav_observer.mavlink.dialect import MSG_ID, type_key
 from mav_observer.outputs.records import EstimateRecord
 from mav_observer.tracking import directions as adapters
-from mav_observer.tracking.bearings import POSITION_MAX_AGE_S, BearingReaders
+from mav_observer.tracking.bearings import GIMBAL_SOURCES, POSITION_MAX_AGE_S, BearingReaders
 from mav_observer.tracking.config import AUTO_SOURCES, PUBLISH, SOURCES, TrackerConfig
 from mav_observer.tracking.directions import Skip
 from mav_observer.tracking.origin import pair_global_local, place_origin
@@ -123,6 +123,7 @@ class Tracker(BearingReaders, SavedObservers):
             "MOUNT_ORIENTATION": self._on_mount_orientation,
             "MOUNT_STATUS": self._on_mount_status,
             "LANDING_TARGET": self._on_landing_target,
+            "DISTANCE_SENSOR": self._on_distance_sensor,
             "HOME_POSITION": self._on_home,
             "GPS_GLOBAL_ORIGIN": self._on_gps_global_origin,
             "GLOBAL_POSITION_INT": self._on_global_position,
@@ -465,6 +466,7 @@ class Tracker(BearingReaders, SavedObservers):
         t_arrival: float,
         direction: Vec3,
         out: list[EstimateRecord],
+        range_m: float | None = None,
     ) -> None:
         n2 = direction[0] ** 2 + direction[1] ** 2 + direction[2] ** 2
         if not math.isfinite(tb) or not math.isfinite(n2):
@@ -473,10 +475,15 @@ class Tracker(BearingReaders, SavedObservers):
             raise Skip("zero_length", f"bearing {direction}")
         inv = 1.0 / math.sqrt(n2)
         y = [direction[0] * inv, direction[1] * inv, direction[2] * inv]
+        range_std = self.config.range_noise_m
+        if range_m is None and source in GIMBAL_SOURCES and veh.gimbal_range is not None:
+            t_r, r, sd = veh.gimbal_range
+            if abs(t_r - tb) <= self.config.max_range_age_s:  # each range fused once
+                range_m, range_std, veh.gimbal_range = r, sd, None
         obs = veh.targets.get(target)
         reacq = 0 if obs is None else obs.reacquisitions
         try:
-            est, new = veh.targets.bearing(target, source, tb, y, veh.velocity)
+            est, new = veh.targets.bearing(target, source, tb, y, veh.velocity, range_m, range_std)
         except InvalidSampleError as exc:
             raise Skip("refused_bearing", str(exc)) from exc
         if obs is None:  # a new target: its observer now exists

@@ -60,6 +60,8 @@ class Vehicle:
     #: delta_yaw))`` from a gimbal, turned into the matrix only when a tracked point needs it
     camera_attitude: tuple[float, Any] | None = None
     fov: dict[int, tuple[float, float]] = field(default_factory=dict)
+    #: the latest range from a rangefinder on the gimbal not fused yet: ``(t, m, std m)``
+    gimbal_range: tuple[float, float, float] | None = None
     home: Vec3 | None = None
     #: messages of this vehicle skipped, by reason (the tracker's ``skipped`` sums all)
     skipped: Counter[str] = field(default_factory=Counter)
@@ -156,6 +158,7 @@ note: Callable[[Vehicle, str], None], reboot: Callable[[Vehicle, str], None],
         note(veh, "component_on_autopilot_clock")
         return boot_s
     return ap.to_boot(clock.to_arrival(boot_s))
+
 
 def arrival_on_autopilot_clock(veh: Vehicle, arrival: float) -> float:
     """A message with no time field: its arrival time on the autopilot clock, through

@@ -261,7 +261,7 @@ def test_state_is_saved_and_restored_across_a_restart(tmp_path: Path) -> None:
 
 def test_a_bad_state_file_is_moved_aside_and_the_service_starts_afresh(tmp_path: Path) -> None:
     path = tmp_path / "state.json"
-    path.write_text('{"kind": "mav-observer state", "schema": 1, "saved_unix_s": "x"}')
+    path.write_text('{"kind": "mav-observer state", "schema": 2, "saved_unix_s": "x"}')
     items, em = messages(10.0)
     svc, pubs, _ = make_service(items, em, {"state": {"file": str(path)}})
     svc.run(duration_s=11.0)

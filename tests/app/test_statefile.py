@@ -39,9 +39,9 @@ def test_an_unwritable_place_raises_oserror(tmp_path: Path) -> None:
         ("not json", "not JSON"),
         ("[1, 2]", "not a mav-observer state file"),
         ('{"kind": "mav-observer state", "schema": 9}', "schema 9"),
-        ('{"kind": "mav-observer state", "schema": 1, "saved_unix_s": null}', "saved_unix_s"),
+        ('{"kind": "mav-observer state", "schema": 2, "saved_unix_s": null}', "saved_unix_s"),
         (
-            '{"kind": "mav-observer state", "schema": 1, "saved_unix_s": 1, "observers": {}}',
+            '{"kind": "mav-observer state", "schema": 2, "saved_unix_s": 1, "observers": {}}',
             "observers must be a list",
         ),
     ],

@@ -147,6 +147,9 @@ def test_the_end_to_end_bound_counts_the_gauss_markov_velocity_error() -> None:
         assert noise["q_x"] == pytest.approx(case.velocity_white_mps**2 * 0.1)
         if case.realism.get("velocity_gm_std_mps", 0.0) > 0.0:
             assert (noise["gm_std_mps"], noise["gm_tau_s"]) == (0.1, 60.0), name
+        elif name in e2e.RANGED:  # a rangefinder on the gimbal: its information too
+            assert set(noise) == {"sigma_rad", "q_x", "range_sigma_m"}, name
+            assert noise["range_sigma_m"] == 0.3
         else:
             assert set(noise) == {"sigma_rad", "q_x"}, name
     assert "gm_std_mps" in e2e.CASES["velocity_coloured"].bound_noise(0.1)
@@ -295,3 +298,19 @@ def test_a_markdown_table_has_its_header_separator_and_rows() -> None:
 
     got = markdown_table(("a", "b c"), ["| 1 | 2 |", "| 3 | 4 |"])
     assert got.splitlines() == ["| a | b c |", "|---|---|", "| 1 | 2 |", "| 3 | 4 |"]
+
+
+def test_a_measured_range_lowers_the_bound_and_makes_a_hover_bounded() -> None:
+    """The bound with a range measured with each bearing: finite on a hovering vehicle (no
+    motion), where bearings alone leave the range unbounded, and never above the bearings'."""
+    from bench.accuracy import core
+
+    t = np.arange(0.0, 60.0, 0.1)
+    hover = np.tile([20.0, 10.0, 10.0], (len(t), 1))
+    sigma = math.radians(0.5)
+    with pytest.raises(np.linalg.LinAlgError):  # no motion: the range has no information
+        core.crlb(t, hover, sigma)
+    ranged = core.crlb(t, hover, sigma, range_sigma_m=0.3)
+    assert ranged[-1] < 0.05  # about 3.5 cm after a minute of 0.3 m ranges and 0.5 deg
+    fig8 = np.column_stack([20 + 10 * np.sin(0.2 * t), 10 * np.sin(0.4 * t), np.full(len(t), 10.0)])
+    assert np.all(core.crlb(t, fig8, sigma, range_sigma_m=0.3) <= core.crlb(t, fig8, sigma))

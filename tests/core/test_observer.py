@@ -948,3 +948,46 @@ def test_a_live_observer_keeps_nothing_committed() -> None:
     for ev in stream.events():
         (obs.update_bearing if isinstance(ev, BearingSample) else obs.update_velocity)(ev)
     assert obs.take_committed() == [] and obs.commit_pending() == []
+
+
+def _hover(with_range: bool, seconds: float, seed: int = 3) -> list:
+    """A vehicle hovering still 24.5 m from the target, its velocity missing (0.5, -0.3, 0)
+    m/s; a 0.5 deg bearing and (``with_range``) a 0.3 m range at 10 Hz."""
+    rng = np.random.default_rng(seed)
+    x = np.array([20.0, 10.0, 10.0])
+    e = np.array([0.5, -0.3, 0.0])
+    obs = BiasObserver(ObserverConfig())
+    out = []
+    for k in range(int(seconds * 10)):
+        t = 0.1 * k
+        obs.update_velocity(VelocitySample(t_s=t, v_mps=-e))
+        y = x / np.linalg.norm(x)
+        d = rng.normal(size=3) * math.radians(0.5)
+        y = y + d - (d @ y) * y
+        r = float(np.linalg.norm(x) + 0.3 * rng.normal()) if with_range else None
+        est = obs.update_bearing(BearingSample(t_s=t, y=y / np.linalg.norm(y), range_m=r,
+                                               range_std_m=0.3))  # fmt: skip
+        out.append((t, est, float(np.linalg.norm(est.x_m - x))))
+    return out
+
+
+def test_a_range_with_each_bearing_makes_a_hovering_target_observable() -> None:
+    """Bearings alone from a vehicle that does not move cannot tell the range; with a
+    rangefinder's range the estimate is converged within 2 s, its sigma covers its error, and
+    the velocity's error is learnt too."""
+    ranged = _hover(True, 20.0)
+    first = next(t for t, est, _ in ranged if est.status == "converged")
+    assert first <= 2.0
+    for _, est, err in ranged[20:]:
+        assert est.status == "converged"
+        assert err <= 3.0 * math.sqrt(sum(s * s for s in est.x_std_m))
+    assert np.allclose(ranged[-1][1].a_mps, [0.5, -0.3, 0.0], atol=0.02)
+    bare = _hover(False, 20.0)
+    assert all(est.status != "converged" for _, est, _ in bare)
+    assert bare[-1][2] > 10 * ranged[-1][2]
+
+
+@pytest.mark.parametrize(("r", "sd"), [(0.0, 1.0), (-3.0, 1.0), (math.nan, 1.0), (10.0, 0.0)])
+def test_a_range_that_is_not_positive_and_finite_is_refused(r: float, sd: float) -> None:
+    with pytest.raises(InvalidSampleError, match="range_m"):
+        BearingSample(t_s=0.0, y=[1.0, 0.0, 0.0], range_m=r, range_std_m=sd)

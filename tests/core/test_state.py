@@ -120,7 +120,7 @@ def test_the_arrays_tile_one_buffer_as_the_table_says(estimator: str) -> None:
     _disjoint(spans)
     assert sum(b - a for a, b in spans.values()) == st_.buf.size
     assert st_.fs.shape == (5 + 3, 6) and st_.win.shape == (8 + 2, 3 + 9 + 6)
-    assert st_.vbuf.shape == (19, 2 + 6) and st_.bbuf.shape == (19, 1 + 3)
+    assert st_.vbuf.shape == (19, 2 + 6) and st_.bbuf.shape == (19, 3 + 3)
 
 
 def test_the_settings_reach_the_kernels_where_the_layout_says() -> None:

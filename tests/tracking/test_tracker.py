@@ -977,3 +977,30 @@ def test_committed_records_come_once_the_velocity_after_them_is_in() -> None:
 def test_publish_names_a_bad_value() -> None:
     with pytest.raises(ConfigError, match="publish must be one of"):
         TrackerConfig(publish="later")
+
+
+def _hovering(orientation: int, compid: int = 154, n: int = 40):
+    """A vehicle hovering 10 m up, yaw north, its gimbal 45 deg down, and a DISTANCE_SENSOR of
+    14.14 m (the target 10 m north on the ground) before each gimbal message."""
+    msgs = []
+    for i in range(n):
+        ms = 100_000 + 100 * i
+        ds = message("DISTANCE_SENSOR", ms + 4, 10, 20000, 1414, 0, 1, orientation, 255,
+                     compid=compid)  # fmt: skip
+        msgs += [att(ms), lpn(ms, (0.0, 0.0, -10.0), (0.0, 0.0, 0.0)), ds, gimbal(ms + 5)]
+    return msgs
+
+
+def test_a_rangefinder_on_the_gimbal_is_fused_a_downward_one_is_not() -> None:
+    """A DISTANCE_SENSOR of orientation MAV_SENSOR_ROTATION_CUSTOM (or from a gimbal's
+    component) measures along the gimbal's bearing: the hovering vehicle's target is found at
+    once; the vehicle's own downward rangefinder (orientation 25) says nothing about it."""
+    on_gimbal = feed(Tracker(), _hovering(orientation=100, compid=1))
+    assert on_gimbal[-1].estimate.range_m == pytest.approx(14.14, abs=0.05)
+    assert on_gimbal[-1].estimate.status == "converged"
+    by_comp = feed(Tracker(), _hovering(orientation=0, compid=154))
+    assert by_comp[-1].estimate.range_m == pytest.approx(14.14, abs=0.05)
+    tr = Tracker()
+    downward = feed(tr, _hovering(orientation=25, compid=1))
+    assert downward[-1].estimate.status != "converged"
+    assert abs(downward[-1].estimate.range_m - 14.14) > 1.0 and tr.skipped == {}

@@ -35,6 +35,7 @@ from mav_observer.core.kernels.kalman import (
     initial_covariance,
     mirror,
     predict_filter,
+    range_update,
     update_filter,
 )
 from mav_observer.core.kernels.layout import (
@@ -93,7 +94,6 @@ INLIER_SHARE_MIN = 0.5
 #: a gap in the bearings is no evidence, so the first bearing after one cannot alone
 #: re-seed a consistent bank.
 NIS_MAX_WEIGHT = 0.1
-
 
 
 @njit(inline="always", error_model="numpy")
@@ -501,6 +501,30 @@ def update(fs, fp, logw, bs, bp, y, h, walk_hold, walk_hold_nats, shape_m2, wk) 
             _merge(fs, fp, logw, bs, bp, kw)
     if bs[B_NIS_AVG] > bp[P_NIS_GATE] * m and bs[B_AGE_S] > 2.0 * bp[P_NIS_WINDOW_S]:
         reseed(fs, fp, logw, bs, bp, y)
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def update_range(fs, fp, logw, bs, bp, r_meas, var, wk) -> None:
+    """A range ``r_meas`` (m) of variance ``var`` (m^2), measured with the bearing just applied
+    (a rangefinder on the gimbal), applied to every hypothesis, the Riccati observer and the
+    probes; the hypotheses' weights by its likelihood (robust as a bearing's)."""
+    g = bp[P_OUTLIER_NIS]
+    f = int(bs[B_F])
+    hp = int(bp[P_HYPOTHESES])
+    res = wk[0 : 4 * (hp + 3)].reshape((hp + 3, 4))
+    kw = wk[4 * (hp + 3) :]
+    for i in range(f):
+        range_update(fs[i], fp[i], r_meas, var, g, kw, res[i])
+    last = hp + 3 if bp[P_LEARN_WALK] != 0.0 and bs[B_WALK_ON] > 0.0 else hp + 1
+    for k in range(hp, last):
+        range_update(fs[k], fp[k], r_meas, var, g, kw, res[k])
+    if f > 1:
+        floor = g + math.log(var)
+        for i in range(f):
+            logw[i] -= 0.5 * min(res[i, R_NIS] + res[i, R_LOGDET], floor)
+        lse = _logsumexp(logw, f)
+        for i in range(f):
+            logw[i] -= lse
 
 
 @njit(inline="always", error_model="numpy")

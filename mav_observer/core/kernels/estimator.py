@@ -130,15 +130,17 @@ def noise_var(cfg, s) -> float:
 
 
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
-def start(cfg, s, vec, fs, fp, t, y) -> None:
-    """Begin at ``t`` from the bearing ``y`` (of ``t`` or before)."""
+def start(cfg, s, vec, fs, fp, t, y, r_meas) -> None:
+    """Begin at ``t`` from the bearing ``y`` (of ``t`` or before), at the range ``r_meas``
+    (m) measured with it when there is one (NaN: none)."""
     n = int(cfg[O_N])
     s[S_STARTED] = 1.0
     if cfg[O_KIND] == KIND_BANK:
-        bank.start(fs, fp, _logw(cfg, s), _bs(s), _bp(cfg), y, cfg[O_RANGE_GUESS_M])
+        r0 = r_meas if r_meas > 0.0 else cfg[O_RANGE_GUESS_M]
+        bank.start(fs, fp, _logw(cfg, s), _bs(s), _bp(cfg), y, r0)
         s[S_T_BEARING] = t
         return
-    r = cfg[O_INITIAL_RANGE_M]
+    r = r_meas if r_meas > 0.0 else cfg[O_INITIAL_RANGE_M]
     if not math.isnan(r):  # xhat = M ahat + xh1 with ahat = 0
         for i in range(n):
             vec[R_XH1, i] = r * y[i]
@@ -372,3 +374,11 @@ def update(cfg, s, vec, fs, fp, vbuf, t, y, wk) -> None:
     shape = streams.shape_var(q, vbuf, t, cfg[O_MAX_VELOCITY_AGE_S])
     bank.update(fs, fp, _logw(cfg, s), bs, bp, y_use, gap, hold, hold_nats, shape, wk)
     s[S_T_BEARING] = t
+
+
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def update_range(cfg, s, fs, fp, r_meas, var, wk) -> None:
+    """The range ``r_meas`` (m, variance ``var``) measured with the bearing just applied (the
+    paper's observer has no use for it)."""
+    if cfg[O_KIND] == KIND_BANK:
+        bank.update_range(fs, fp, _logw(cfg, s), _bs(s), _bp(cfg), r_meas, var, wk)

@@ -202,6 +202,56 @@ def _update_filter_n(s, p, y, sig2, r_w, outlier_nis, wk, res, n) -> None:
     res[R_STAT] = weight * stat
 
 
+@njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
+def range_update(s, p, r_meas, var, outlier_nis, wk, res) -> None:
+    """A measured range ``r_meas`` (m) of variance ``var`` (m^2) applied to one filter, in
+    place: ``z = r_meas - |x|``, ``H = [x^T / |x|, 0]``, robust as :func:`update_filter` (a
+    range whose NIS exceeds ``outlier_nis`` applied with its variance scaled by
+    ``(nis / outlier_nis)^2``); ``res`` receives ``(nis, log S, weight, 0)``; ``wk`` scratch
+    of ``2n``."""
+    d2 = p.shape[0]
+    n = d2 // 2
+    r = 0.0
+    for i in range(n):
+        r += s[i] * s[i]
+    r = math.sqrt(r)
+    if r < 1e-9:
+        res[R_NIS] = 0.0
+        res[R_LOGDET] = 0.0
+        res[R_WEIGHT] = 1.0
+        res[R_STAT] = 0.0
+        return
+    hp = 0.0  # H P H^T; P H^T is the column sum_k P[:, k] x_k / r
+    for i in range(n):
+        for k in range(n):
+            hp += s[i] * p[i, k] * s[k]
+    hp /= r * r
+    z = r_meas - r
+    sv = hp + var
+    nis = z * z / sv
+    weight = 1.0
+    if nis > outlier_nis:
+        weight = (outlier_nis / nis) ** 2
+        sv = hp + var / weight
+    logdet = math.log(sv)
+    # K = P H^T / S: s += K z, P -= K (P H^T)^T
+    ph = wk[:d2]
+    for i in range(d2):
+        acc = 0.0
+        for k in range(n):
+            acc += p[i, k] * s[k]
+        ph[i] = acc / r
+    for i in range(d2):
+        s[i] += ph[i] * z / sv
+    for i in range(d2):
+        for j in range(i, d2):
+            v = p[i, j] - ph[i] * ph[j] / sv
+            p[i, j] = v
+            p[j, i] = v
+    res[R_NIS] = nis
+    res[R_LOGDET] = logdet
+    res[R_WEIGHT] = weight
+    res[R_STAT] = 0.0
 
 
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")

@@ -84,6 +84,7 @@ S_T_BEARING = 10  # the estimator's latest bearing applied (NaN: none)
 S_SETTLED = 11  # the latency learnt has settled once
 S_STARTED = 12  # the estimator has started
 S_HELD = 13  # committed past the latest velocity, held (it was stale), until the next one
+S_T_RANGE = 14  # the latest range applied (NaN: none)
 OFF_Q = 16
 OFF_BS = 24
 OFF_LAT = 40

@@ -37,6 +37,7 @@ from mav_observer.core.kernels.layout import (
 #: A converged estimate's position sigma is at most this share of its range.
 CONVERGED_SD_REL = 0.05
 
+
 @njit(inline="always", error_model="numpy")
 def _count(win) -> int:
     return int(win[win.shape[0] - 1, 0])
@@ -178,12 +179,14 @@ def shift(win, dt_s, bucket_s) -> None:
 @njit(no_cpython_wrapper=True, no_cfunc_wrapper=True, error_model="numpy")
 def next_status(status, since, t, started, b_age, v_age, exc, cov, corr, settled,
                 max_bearing_age_s, max_velocity_age_s, window_s, window_full_s,
-                excitation_min, converged_tol, sd_rel) -> tuple[int, float]:  # fmt: skip
+                excitation_min, converged_tol, sd_rel, ranged) -> tuple[int, float]:  # fmt: skip
     """The status rules: the new ``(status, observable_since)`` from the previous ones
     (``since`` NaN: not observable now; an age NaN: no sample yet). ``sd_rel``: the position's
     1-sigma radius over the range (0 where the estimator has no covariance): an estimate
     whose own sigma is more than :data:`CONVERGED_SD_REL` of its range is not converged,
-    however little it moves (a geometry that does not determine the range)."""
+    however little it moves (a geometry that does not determine the range). ``ranged``: a
+    range was measured with a recent bearing: the position is observed without motion, so
+    neither the excitation nor the window's wait applies; converged on its sigma alone."""
     if (
         not started
         or math.isnan(b_age)
@@ -192,13 +195,19 @@ def next_status(status, since, t, started, b_age, v_age, exc, cov, corr, settled
         or v_age > max_velocity_age_s
     ):
         return STALE, math.nan
+    hold = 2.0 if status == CONVERGED else 1.0
+    if ranged:
+        s = t if math.isnan(since) else since
+        return (CONVERGED if sd_rel <= CONVERGED_SD_REL * hold else CONVERGING), s
     threshold = excitation_min * (2.0 if status == NOT_OBSERVABLE else 1.0)
     if cov >= window_full_s and exc < threshold:
         return NOT_OBSERVABLE, math.nan
     s = t if math.isnan(since) else since
-    hold = 2.0 if status == CONVERGED else 1.0
-    if settled and t - s >= window_s and corr <= converged_tol * hold and (
-        sd_rel <= CONVERGED_SD_REL * hold
+    if (
+        settled
+        and t - s >= window_s
+        and corr <= converged_tol * hold
+        and (sd_rel <= CONVERGED_SD_REL * hold)
     ):
         return CONVERGED, s
     return CONVERGING, s

@@ -83,6 +83,7 @@ from mav_observer.core.kernels.layout import (
     S_SINCE,
     S_STATUS,
     S_T_C,
+    S_T_RANGE,
     VB_T,
 )
 
@@ -169,7 +170,10 @@ def _commit_piece(cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t0, t1, at_bear
             if bbuf[i, 0] == b:
                 hit = i
         if hit >= 0:
-            estimator.update(cfg, s, vec, fs, fp, vbuf, b, bbuf[hit, 1:], wk)
+            estimator.update(cfg, s, vec, fs, fp, vbuf, b, bbuf[hit, 1 : 1 + n], wk)
+            if not math.isnan(bbuf[hit, 1 + n]):  # a range measured with it
+                estimator.update_range(cfg, s, fs, fp, bbuf[hit, 1 + n], bbuf[hit, 2 + n], wk)
+                s[S_T_RANGE] = b
             corrected = True
     estimator.mean(cfg, s, vec, fs, after)
     s[S_T_C] = t1
@@ -225,8 +229,9 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
             nb = int(q[Q_NB])
             if bbuf[nb - 1, 0] == t:
                 bp = cfg[O_BANK : O_BANK + P_COUNT]
-                kalman.position_update(xh, pxx, bbuf[nb - 1, 1:], estimator.noise_var(cfg, s),
-                                       bp[P_OUTLIER_NIS], wk2)  # fmt: skip
+                kalman.position_update(xh, pxx, bbuf[nb - 1, 1 : 1 + n],
+                                       estimator.noise_var(cfg, s), bp[P_OUTLIER_NIS],
+                                       wk2)  # fmt: skip
             predicted_cov = True
     rng = 0.0
     for j in range(n):
@@ -263,11 +268,16 @@ def _estimate_at(cfg, s, vec, fs, fp, vbuf, bbuf, win, row, sub, t, committed) -
         for i in range(n):
             tr += max(pxx[i, i], 0.0)
         sd_rel = math.sqrt(tr) / max(rng, 1e-9)
+    ranged = (
+        has_cov
+        and not math.isnan(s[S_T_RANGE])
+        and (abs(t - s[S_T_RANGE]) <= cfg[O_MAX_BEARING_AGE_S])
+    )
     status, since = monitor.next_status(
         int(s[S_STATUS]), s[S_SINCE], t, started, b_age, v_age, exc, cov, corr,
         estimator.settled(cfg, s), cfg[O_MAX_BEARING_AGE_S], cfg[O_MAX_VELOCITY_AGE_S],
         cfg[O_WINDOW_S], cfg[O_WINDOW_FULL_S], cfg[O_EXCITATION_MIN], cfg[O_CONVERGED_TOL],
-        sd_rel,
+        sd_rel, ranged,
     )  # fmt: skip
     s[S_STATUS] = status
     s[S_SINCE] = since
@@ -401,6 +411,8 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
         if int(q[Q_NB]) >= bbuf.shape[0] - 1:
             return ERR_BUFFER_FULL
         streams.append_bearing(q, bbuf, t, u)
+        if w.shape[0] >= 2 and not math.isnan(w[0]):  # a range measured with the bearing
+            streams.set_bearing_range(q, bbuf, u.shape[0], w[0], w[1])
     elif op == OP_PREDICT and started and t < t_c:
         return ERR_BEFORE_COMMITTED
     k = 0
@@ -409,7 +421,11 @@ def _run(op, cfg, s, vec, fs, fp, vbuf, bbuf, win, out, wk, t, u, has_w, w) -> i
         streams.keep_latest(q, vbuf, bbuf)
         if q[Q_NV] > 0 and q[Q_NB] > 0:
             t_b = bbuf[0, 0]
-            estimator.start(cfg, s, vec, fs, fp, t_b, bbuf[0, 1:])
+            n = int(cfg[O_N])
+            estimator.start(cfg, s, vec, fs, fp, t_b, bbuf[0, 1 : 1 + n], bbuf[0, 1 + n])
+            if not math.isnan(bbuf[0, 1 + n]):
+                estimator.update_range(cfg, s, fs, fp, bbuf[0, 1 + n], bbuf[0, 2 + n], wk)
+                s[S_T_RANGE] = t_b
             s[S_T_C] = max(t_b, vbuf[0, VB_T])
             started = True
             if keep and s[S_T_C] == t_b:  # at this bearing (not applied again): its estimate

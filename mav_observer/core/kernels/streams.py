@@ -8,7 +8,8 @@ the data horizon. The rules are ``docs/observer.md``'s ("How samples become inpu
 * ``vbuf`` (capacity, 2 + 2n): per velocity sample its time, whether the mean over the
   interval that ends at it is known from the positions (1.0) and that mean, its vector;
   columns ``VB_*``;
-* ``bbuf`` (capacity, 1 + n): per bearing its time and unit vector;
+* ``bbuf`` (capacity, 3 + n): per bearing its time, unit vector, and the range measured with
+  it (m, NaN: none) and that range's variance (m^2);
 * ``q``: the streams' scalars (``Q_*``): the rows in use, the velocity's latest sample
   interval and a sparse stream's extrapolation error learnt.
 
@@ -74,10 +75,20 @@ def append_velocity(q, vbuf, t, v) -> None:
 
 
 @njit(inline="always", error_model="numpy")
+def set_bearing_range(q, bbuf, n, r, var) -> None:
+    """The range ``r`` (m) of variance ``var`` (m^2) measured with the latest bearing."""
+    nb = int(q[Q_NB])
+    bbuf[nb - 1, 1 + n] = r
+    bbuf[nb - 1, 2 + n] = var
+
+
+@njit(inline="always", error_model="numpy")
 def append_bearing(q, bbuf, t, y) -> None:
     nb = int(q[Q_NB])
     bbuf[nb, 0] = t
-    bbuf[nb, 1:] = y
+    bbuf[nb, 1 : 1 + y.shape[0]] = y
+    bbuf[nb, 1 + y.shape[0]] = math.nan
+    bbuf[nb, 2 + y.shape[0]] = 0.0
     q[Q_NB] = nb + 1
 
 
@@ -384,7 +395,7 @@ def bearing_at(q, bbuf, t, linear, max_bearing_age_s, out) -> bool:
             out[j] *= inv
         return True
     if t <= bbuf[p, 0] + max_bearing_age_s:
-        out[:] = bbuf[p, 1:]
+        out[:] = bbuf[p, 1 : 1 + out.shape[0]]
         return True
     return False
 

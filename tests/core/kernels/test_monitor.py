@@ -157,3 +157,15 @@ def test_status_converged_needs_its_own_sigma_small() -> None:
     assert _status(CONVERGING, 0.0, sd_rel=0.04)[0] == CONVERGED
     assert _status(CONVERGED, 0.0, sd_rel=0.08)[0] == CONVERGED
     assert _status(CONVERGED, 0.0, sd_rel=0.12)[0] == CONVERGING
+
+
+def test_a_measured_range_converges_on_the_sigma_alone_without_motion() -> None:
+    """With a range measured with a recent bearing the position is observed without motion:
+    no excitation, no window, still corrections, a latency not settled: converged once its
+    sigma is within 5 % of the range (10 % to stay); a stale stream is still stale."""
+    still = {"exc": 0.0, "covered": 10.0, "corr": 0.5, "settled": False, "ranged": True}
+    assert _status(STALE, math.nan, t=0.1, sd_rel=0.02, **still) == (CONVERGED, 0.1)
+    assert _status(CONVERGING, 0.0, sd_rel=0.08, **still)[0] == CONVERGING
+    assert _status(CONVERGED, 0.0, sd_rel=0.08, **still)[0] == CONVERGED
+    assert _status(CONVERGED, 0.0, sd_rel=0.02, b_age=5.0, **still)[0] == STALE
+    assert _status(CONVERGED, 0.0, sd_rel=0.02, **{**still, "ranged": False})[0] == NOT_OBSERVABLE
