@@ -7,6 +7,8 @@ Each figure is a ratio against a baseline measured in the same run, by its own s
 
 * ``step``: ``bench/observer_update.py`` (one converged velocity + bearing step, and the first
   10 s of a fresh estimator, through the public API, over one 3x3 ``numpy.linalg.inv``);
+* ``formats``: ``bench/log_formats_speed.py`` (replay of ``.bin`` and ``.ulg`` files against
+  DFReader and pyulog);
 * ``replay``: ``bench/replay_throughput.py --quick`` (``mav-observer replay`` against a plain
   pymavlink loop over the same file, whole processes);
 * ``latency``: ``bench/service_latency.py --updates 3000`` (the service against a relay that
@@ -67,6 +69,8 @@ def measure(skip: set[str]) -> dict[str, dict]:
         res["montecarlo"] = {"wall_s": min(best)}
     if "replay" not in skip:
         res["replay"] = _json_file(["bench/replay_throughput.py", "--quick"])
+    if "formats" not in skip:
+        res["formats"] = _json_file(["bench/log_formats_speed.py"])
     if "latency" not in skip:
         res["latency"] = _json_file(["bench/service_latency.py", "--updates", "3000"])
     if "targets" not in skip:
@@ -108,6 +112,15 @@ def table(res: dict[str, dict]) -> str:
         row("the same, in one process (the work alone, start-up excluded)",
             _range(inproc) + "x", "-", True,
             "python bench/replay_throughput.py --quick")  # fmt: skip
+    if "formats" in res:
+        for kind, base, goal in (("bin", "a plain DFReader loop", 3.0),
+                                 ("ulg", "a plain pyulog load", 2.0)):  # fmt: skip
+            small, big = res["formats"][kind]
+            row(f"replay of a `.{kind}` over {base}, whole processes: a 30-minute flight "
+                f"({big['bytes'] / 1e6:.0f} MB; a public log of {small['bytes'] / 1e6:.1f} MB)",
+                f"{big['speedup']:.2f}x ({small['speedup']:.2f}x)", f">= {goal:g}x",
+                min(big["speedup"], small["speedup"]) >= goal,
+                "python bench/log_formats_speed.py")  # fmt: skip
     if "latency" in res:
         d = res["latency"]
         base = d["baseline"]
