@@ -9,8 +9,8 @@ Sub-commands:
   estimate against truth until converged (the simulator lives in the separate ``sim``
   package and runs as its own process, ``python -m sim live``; ``mav_observer`` never
   imports it).
-* ``replay SOURCE``: replay a tlog (or read a live connection) into estimates, files, a
-  summary and a plot (``docs/cli.md``).
+* ``replay SOURCE``: replay a flight log (or read a live connection) into estimates, files, a
+  summary, a plot and maps (``docs/cli.md``; :mod:`mav_observer.app.replay_cmd`).
 * ``version``: print the version.
 """
 
@@ -71,6 +71,12 @@ def build_parser() -> argparse.ArgumentParser:
         "(GeoJSON, docs/geolocation.md)",
     )
     rp.add_argument("--kml", type=Path, help="the same as KML (Google Earth, QGIS)")
+    rp.add_argument(
+        "--html",
+        type=Path,
+        help="a map report: one HTML file that opens from disk (the tracks, the estimates over "
+        "time with a slider and their sigma ellipses, the summary, the plot)",
+    )
     rp.add_argument(
         "--truth", type=Path, help="a reference track, JSON Lines (docs/schema.md): errors too"
     )
@@ -144,6 +150,18 @@ def _add_run_parser(sub: Any) -> None:
         metavar="URL",
         help="send converged estimates back over MAVLink (LANDING_TARGET, STATUSTEXT) to URL; "
         "'input': over the input connection (docs/geolocation.md)",
+    )
+    run.add_argument(
+        "--web",
+        metavar="HOST:PORT",
+        help="a live map in the browser at http://HOST:PORT/ (127.0.0.1:8765, say; another "
+        "address than loopback is your explicit choice) (docs/service.md)",
+    )
+    run.add_argument(
+        "--web-tiles",
+        metavar="URL",
+        help="a tile layer for the map once the origin is known ({z}/{x}/{y} URL); default: "
+        "none, a metric grid in the local frame (offline)",
     )
     add_estimation_flags(run)
     run.add_argument("--duration", type=float, help="stop after this many seconds")
@@ -344,9 +362,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     conf = zenoh_io.session_config(
         config_file=z["config_file"], mode=z["mode"], listen=z["listen"], connect=z["connect"]
     )
+    web = _web_server(args.web, args.web_tiles)
     session = zenoh_io.open_session(conf)
     try:
         service = Service.from_settings(settings, session)
+        if web is not None:
+            service.web = web.feed
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: service.stop())
         logging.getLogger("mav_observer.app.service").info(
@@ -358,7 +379,29 @@ def cmd_run(args: argparse.Namespace) -> int:
         service.run(duration_s=args.duration)
     finally:
         session.close()
+        if web is not None:
+            web.close()
     return 0
+
+
+def _web_server(listen: str | None, tiles: str | None) -> Any:
+    """The live map's server on ``HOST:PORT`` (started), or ``None``; a bad address is a
+    :class:`ConfigError` naming it."""
+    if listen is None:
+        return None
+    from mav_observer.outputs.web import MapFeed, MapServer
+
+    host, _, port = listen.rpartition(":")
+    if not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ConfigError(f"--web must be HOST:PORT, got {listen!r}")
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        logging.getLogger("mav_observer.app.service").warning(
+            "the live map listens on %s: reachable from other machines", host
+        )
+    try:
+        return MapServer(MapFeed(), host, int(port), tiles).start()
+    except OSError as exc:
+        raise ConfigError(f"--web {listen}: cannot listen there ({exc})") from exc
 
 
 def cmd_listen(args: argparse.Namespace) -> int:
@@ -395,114 +438,6 @@ def cmd_listen(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_maps(args: argparse.Namespace, summary: Any, name: str) -> int:
-    """Write ``--geojson`` and ``--kml``; 3 (nothing written) when no estimate had a place
-    on the map (the log never gave the local frame's origin)."""
-    if not (args.geojson or args.kml):
-        return 0
-    import json
-
-    from mav_observer.outputs import maps as mapexport
-
-    tracks = summary.map_tracks
-    if not tracks:
-        print(
-            "mav-observer: no map written: no estimate has a place on the map (the log gives "
-            "no GPS_GLOBAL_ORIGIN, HOME_POSITION, or GLOBAL_POSITION_INT at the time of a "
-            "LOCAL_POSITION_NED; docs/geolocation.md)",
-            file=sys.stderr,
-        )
-        return 3
-    try:
-        if args.geojson:
-            args.geojson.write_text(json.dumps(mapexport.geojson(tracks)), encoding="utf-8")
-        if args.kml:
-            args.kml.write_text(mapexport.kml(tracks, name=name), encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot write the map: {exc}") from exc
-    return 0
-
-
-def cmd_replay(args: argparse.Namespace) -> int:
-    from mav_observer.app import reference
-    from mav_observer.app import replay as rp
-    from mav_observer.app import settings as st
-    from mav_observer.mavlink import signing
-    from mav_observer.outputs.report import plot_replay
-
-    settings = st.resolve(args.config, estimation_overrides(args), SETTING_FLAGS)
-    cfg = settings.tracker_config()
-    m = settings.values["mavlink"]
-    if args.source is None and args.config is None:
-        raise ConfigError(
-            "replay needs a SOURCE (a .tlog file or a connection string), or --config FILE "
-            "whose [mavlink] url it reads"
-        )
-    source = args.source if args.source is not None else m["url"]
-    key_file = m["signing_key_file"]
-    link = rp.LinkOptions(
-        heartbeat_period_s=m["heartbeat_period_s"],
-        signing_key=None if key_file is None else signing.load_key(key_file),
-        signing_link_id=m["signing_link_id"],
-    )
-    summary = rp.replay(
-        source,
-        link=link,
-        tracker_config=cfg,
-        output_jsonl=args.output,
-        output_csv=args.csv,
-        keep_series=bool(args.plot or args.truth),
-        duration_s=args.duration,
-        progress=not args.quiet and sys.stderr.isatty(),
-        smooth=args.smooth is not None,
-        smooth_jsonl=args.smooth if isinstance(args.smooth, Path) else None,
-        keep_map=bool(args.geojson or args.kml or args.plot),
-        live=args.live,
-    )
-    map_status = _write_maps(args, summary, Path(source).name)
-    errors = None
-    if args.truth:
-        track = reference.read(args.truth)
-        errors = {k: reference.errors(s, track[k]) for k, s in summary.series.items() if k in track}
-    if args.plot:
-        plot_replay(
-            summary.series,
-            args.plot,
-            title=Path(source).name,
-            errors=errors,
-            excitation_min=cfg.observer.excitation_min,
-            events=summary.event_log,
-            maps=summary.map_tracks,
-        )
-    if not args.quiet:
-        print(summary.text())
-        if errors:
-            for key, err in errors.items():
-                last = reference.last_third(err)
-                print(
-                    f"against truth, {key}, last third: worst position error "
-                    f"{100 * last['max_rel_pos_err']:.2f} % of range, worst bias error "
-                    f"{last['max_bias_err_mps']:.4f} m/s"
-                )
-                h = reference.honesty(err)
-                if h["after_convergence"]:
-                    n, u = h["after_convergence"], h["uncovered"]
-                    print(
-                        f"  after the first convergence: {u} of {n} estimates "
-                        f"({100 * u / n:.1f} %) outside twice their sigma, worst error "
-                        f"{h['worst_sigma_ratio']:.1f} sigma; error above 5 % of range for "
-                        f"{h['time_above_s']:.1f} s ({100 * h['time_above_share']:.1f} % "
-                        "of the span)"
-                    )
-    if args.summary_json:
-        doc = summary.to_dict()
-        if errors:
-            doc["truth_last_third"] = {k: reference.last_third(e) for k, e in errors.items()}
-            doc["truth_honesty"] = {k: reference.honesty(e) for k, e in errors.items()}
-        args.summary_json.write_text(json.dumps(doc, indent=1))
-    return map_status
-
-
 #: Threads of numpy's BLAS (OpenBLAS) unless the environment says otherwise: the estimator's
 #: matrices are 3x3 to 8x8, which OpenBLAS does not split, and starting its threads (one a
 #: core) slows a replay's start-up. Set before numpy is first imported, which ``import
@@ -531,6 +466,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     try:
         if args.command == "replay":
+            from mav_observer.app.replay_cmd import cmd_replay
+
             return cmd_replay(args)
         if args.command == "run":
             return cmd_run(args)

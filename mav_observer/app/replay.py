@@ -119,13 +119,15 @@ def replay(
     smooth_jsonl: Path | None = None,
     smooth_window_s: float | None = None,
     keep_map: bool = False,
+    keep_report: bool = False,
     live: bool = False,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
     the source has no usable velocity or bearing stream. ``link``: how a live source is read
     (a file ignores it). ``smooth`` (or ``smooth_jsonl``): afterwards, every target's
     estimate from the whole log (:mod:`mav_observer.core.smoother`), in the summary and, one
-    record per bearing, in ``smooth_jsonl`` (``docs/schema.md``). ``keep_map``: the
+    record per bearing, in ``smooth_jsonl`` (``docs/schema.md``). ``keep_report``: the
+    summary's ``report`` for ``--html``. ``keep_map``: the
     summary's ``map_tracks`` for ``--geojson`` and ``--kml`` (:mod:`mav_observer.outputs.maps`).
     ``live``: each bearing's estimate at its arrival, as the service publishes it; by default
     (``TrackerConfig.publish = "auto"``) once the velocity after it is known
@@ -145,6 +147,12 @@ def replay(
 
         summary.map_tracks = MapTracks()
     map_tracks = summary.map_tracks
+    report = None
+    if keep_report:
+        from mav_observer.outputs.html_report import ReportData
+
+        report = summary.report = ReportData()
+    attitude = tracker.vehicle_attitude
     if is_file_source(source):
         summary.bytes_total = Path(source).stat().st_size
     t0 = time.perf_counter()
@@ -183,6 +191,9 @@ def replay(
                         summary.series.setdefault(key, Series()).add(r)
                     if map_tracks is not None:
                         map_tracks.add(r)
+                    if report is not None:
+                        rpy = attitude(r.sysid, r.t_boot_s)
+                        report.add(r, None if rpy is None else rpy[2])
                     summary.estimates_written += 1
 
             for n, (t, msg) in enumerate(messages, 1):

@@ -12,6 +12,7 @@ from mav_observer.outputs.records import EstimateRecord
 
 if TYPE_CHECKING:
     from mav_observer.core import smoother
+    from mav_observer.outputs.html_report import ReportData
     from mav_observer.outputs.maps import MapTracks
 
 
@@ -135,6 +136,8 @@ class ReplaySummary:
     )
     #: ``keep_map``: what the GeoJSON and KML exports need (:mod:`mav_observer.outputs.maps`)
     map_tracks: MapTracks | None = None
+    #: ``keep_report``: what ``replay --html`` shows (:mod:`mav_observer.outputs.html_report`)
+    report: ReportData | None = None
     #: with ``gimbal_angles = "auto"``: how each gimbal's angles were read in the end, by
     #: ``sysid/device id`` (``"flags"``, ``"body"``, or ``"auto"``: undecided, the flags)
     gimbal_angles: dict[str, str] = field(default_factory=dict)

@@ -44,6 +44,7 @@ from mav_observer.mavlink.connection import ConnectionReader
 from mav_observer.mavlink.dialect import type_key
 from mav_observer.outputs.mavlink_out import MavlinkOut, OutConfig
 from mav_observer.outputs.records import STATUS_SCHEMA, EstimateRecord
+from mav_observer.outputs.web import MapFeed
 from mav_observer.outputs.zenoh_io import Publications
 from mav_observer.tracking.tracker import Tracker
 
@@ -117,6 +118,8 @@ class Service:
         self.state_file: Path | None = None if sf is None else Path(sf)
         self.save_period_s = float(settings["state"]["save_period_s"])
         self.vehicles: dict[int, _VehicleView] = {}
+        #: the live map's feed (``run --web``), given each estimate published
+        self.web: MapFeed | None = None
         self.messages = 0
         self.state_errors = 0
         self._stop = threading.Event()
@@ -272,7 +275,12 @@ class Service:
                 nxt = now + self.min_interval_s
             tgt.next_pub_mono = nxt
             tgt.published += 1
-            self.pub.estimate(view.sysid, rec.target, rec.to_json())
+            text = rec.to_json()
+            self.pub.estimate(view.sysid, rec.target, text)
+            if self.web is not None:  # the live map: a put, never a wait
+                rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
+                origin = self.tracker.origin(rec.sysid)
+                self.web.add(rec, None if rpy is None else rpy[2], origin, text)
         if self.mavlink_out is not None:
             rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
             self.mavlink_out.on_estimate(rec, rpy, now)

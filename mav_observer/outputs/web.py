@@ -1,0 +1,272 @@
+"""The live map: a local web page beside the service (``mav-observer run --web HOST:PORT``).
+
+The service hands each estimate it publishes to :class:`MapFeed` (a dictionary update and a
+put on each page's bounded queue: never a wait, whatever the pages do); :class:`MapServer`
+serves, from its own threads:
+
+* ``/``: the page (``web/index.html``, ``web/map.js`` and Leaflet, vendored with its licence:
+  nothing is fetched from elsewhere). Offline first: the local frame's metric grid; a tile
+  layer only when a tile URL is set (``--web-tiles``) and the origin is known;
+* ``/state``: the latest of everything as JSON (each vehicle's origin, position, heading and
+  recent track; each target's latest record and its recent estimates);
+* ``/events``: server-sent events, one per estimate, ``{"key", "yaw_deg", "sent_ms",
+  "origin", "record"}`` (``record`` as ``docs/schema.md``); a page too slow to keep up loses
+  the oldest events (it redraws from the latest), counted in ``/state``'s ``dropped``;
+* ``/vehicle/N``, ``/target/N/NAME``: one vehicle's or target's part of ``/state`` (404 for
+  one not seen).
+
+Loopback by default; another address is the user's explicit choice.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from collections import deque
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from typing import Any
+
+from mav_observer.outputs.records import EstimateRecord
+
+log = logging.getLogger(__name__)
+
+#: Points of a vehicle's track and of a target's estimates kept for the page.
+TRACK_POINTS = 300
+#: Pages served at once (more are refused with 503).
+MAX_CLIENTS = 16
+#: Events queued for one page; beyond, the oldest go.
+QUEUE_LEN = 512
+STATIC = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/map.js": ("map.js", "text/javascript; charset=utf-8"),
+    "/leaflet.js": ("leaflet.js", "text/javascript; charset=utf-8"),
+    "/leaflet.css": ("leaflet.css", "text/css; charset=utf-8"),
+    "/LICENSE-leaflet.txt": ("LICENSE-leaflet.txt", "text/plain; charset=utf-8"),
+}
+
+
+def static_file(name: str) -> bytes:
+    """One of the page's files (``mav_observer/outputs/web/``)."""
+    return resources.files("mav_observer.outputs").joinpath("web", name).read_bytes()
+
+
+class MapFeed:
+    """What the page shows, fed by the service: thread-safe, and :meth:`add` never waits."""
+
+    def __init__(self, max_clients: int = MAX_CLIENTS, queue_len: int = QUEUE_LEN) -> None:
+        self._lock = threading.Lock()
+        self._vehicles: dict[int, dict[str, Any]] = {}
+        self._targets: dict[str, dict[str, Any]] = {}
+        self._clients: list[queue.Queue[str]] = []
+        self.max_clients = max_clients
+        self.queue_len = queue_len
+        self.dropped = 0
+        self.events = 0
+
+    def add(
+        self,
+        rec: EstimateRecord,
+        yaw_rad: float | None = None,
+        origin: dict[str, Any] | None = None,
+        rec_json: str | None = None,
+    ) -> None:
+        """An estimate the service published (``rec_json``: its JSON, when already made), the
+        vehicle's heading at its time, its origin. A dictionary update and a put per page."""
+        text = rec.to_json() if rec_json is None else rec_json
+        key = f"{rec.sysid}/{rec.target}"
+        yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
+        vp = rec.vehicle_pos_ned_m
+        tp = rec.target_pos_ned_m
+        with self._lock:
+            veh = self._vehicles.get(rec.sysid)
+            if veh is None:
+                veh = self._vehicles[rec.sysid] = {"track": deque(maxlen=TRACK_POINTS)}
+            if origin is not None and veh.get("origin") != origin:
+                veh["origin"] = origin
+                veh["origin_json"] = json.dumps(origin)
+            if vp is not None:
+                veh["pos_ned_m"] = [float(v) for v in vp]
+                veh["yaw_deg"] = yaw
+                veh["t_boot_s"] = rec.t_boot_s
+                veh["track"].append([float(vp[0]), float(vp[1])])
+            tgt = self._targets.get(key)
+            if tgt is None:
+                tgt = self._targets[key] = {"history": deque(maxlen=TRACK_POINTS)}
+            tgt["record_json"] = text
+            if tp is not None:
+                tgt["history"].append([float(tp[0]), float(tp[1]), str(rec.estimate.status)])
+            self.events += 1
+            clients = list(self._clients)
+            origin_json = veh.get("origin_json", "null")
+        if not clients:
+            return
+        event = (
+            f'{{"key":{json.dumps(key)},"yaw_deg":{"null" if yaw is None else repr(yaw)},'
+            f'"sent_ms":{time.time() * 1000.0!r},"origin":{origin_json},"record":{text}}}'
+        )
+        for q in clients:
+            _put_dropping_oldest(q, event, self)
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            return {
+                "vehicles": {
+                    str(s): {
+                        **{k: x for k, x in v.items() if k != "origin_json"},
+                        "track": list(v["track"]),
+                    }
+                    for s, v in self._vehicles.items()
+                },
+                "targets": {
+                    k: {"record": json.loads(t["record_json"]), "history": list(t["history"])}
+                    for k, t in self._targets.items()
+                },
+                "events": self.events,
+                "dropped": self.dropped,
+                "clients": len(self._clients),
+            }
+
+    def subscribe(self) -> queue.Queue[str] | None:
+        """A new page's event queue, ``None`` when :attr:`max_clients` are served."""
+        with self._lock:
+            if len(self._clients) >= self.max_clients:
+                return None
+            q: queue.Queue[str] = queue.Queue(maxsize=self.queue_len)
+            self._clients.append(q)
+            return q
+
+    def unsubscribe(self, q: queue.Queue[str]) -> None:
+        with self._lock:
+            if q in self._clients:
+                self._clients.remove(q)
+
+
+def _finite(v: Any) -> Any:
+    raise TypeError(f"not JSON: {v!r}")
+
+
+def _put_dropping_oldest(q: queue.Queue[str], event: str, feed: MapFeed) -> None:
+    while True:
+        try:
+            q.put_nowait(event)
+            return
+        except queue.Full:
+            try:
+                q.get_nowait()
+                feed.dropped += 1
+            except queue.Empty:
+                pass
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: _Server
+
+    def log_message(self, format: str, *args: Any) -> None:
+        log.debug("web: " + format, *args)
+
+    def _send(self, code: int, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, obj: Any, code: int = 200) -> None:
+        self._send(code, json.dumps(obj, default=_finite).encode(), "application/json")
+
+    def do_GET(self) -> None:
+        path = self.path.split("?", 1)[0]
+        feed = self.server.feed
+        if path in STATIC:
+            name, ctype = STATIC[path]
+            body = static_file(name)
+            if path == "/":
+                config = json.dumps({"tiles": self.server.tiles})
+                body = body.replace(b"/*CONFIG*/{}", config.encode())
+            self._send(200, body, ctype)
+        elif path == "/state":
+            self._json(feed.snapshot())
+        elif path == "/events":
+            self._events(feed)
+        elif path.startswith("/vehicle/"):
+            snap = feed.snapshot()["vehicles"].get(path[len("/vehicle/") :])
+            self._json(snap if snap is not None else {"error": "no such vehicle"},
+                       200 if snap is not None else 404)  # fmt: skip
+        elif path.startswith("/target/"):
+            key = path[len("/target/") :]
+            snap = feed.snapshot()["targets"].get(key)
+            self._json(snap if snap is not None else {"error": "no such target"},
+                       200 if snap is not None else 404)  # fmt: skip
+        else:
+            self._json({"error": f"no page {path}"}, 404)
+
+    def _events(self, feed: MapFeed) -> None:
+        q = feed.subscribe()
+        if q is None:
+            self._json({"error": "too many pages open"}, 503)
+            return
+        try:
+            self.send_response(200)
+            self.send_header("Content-Type", "text/event-stream")
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(b": connected\n\n")
+            self.wfile.flush()
+            while not self.server.closing.is_set():
+                try:
+                    event = q.get(timeout=0.5)
+                except queue.Empty:
+                    self.wfile.write(b": keep-alive\n\n")
+                    self.wfile.flush()
+                    continue
+                self.wfile.write(b"data: " + event.encode() + b"\n\n")
+                self.wfile.flush()
+        except (BrokenPipeError, ConnectionResetError, TimeoutError):
+            pass  # the page went away
+        finally:
+            feed.unsubscribe(q)
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+    feed: MapFeed
+    tiles: str | None
+    closing: threading.Event
+
+
+class MapServer:
+    """The page's HTTP server on ``host:port`` (0: any free port), in its own threads."""
+
+    def __init__(
+        self, feed: MapFeed, host: str = "127.0.0.1", port: int = 0, tiles: str | None = None
+    ) -> None:
+        self.feed = feed
+        self._httpd = _Server((host, port), _Handler)
+        self._httpd.feed = feed
+        self._httpd.tiles = tiles
+        self._httpd.closing = threading.Event()
+        self._thread = threading.Thread(
+            target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True
+        )
+
+    @property
+    def url(self) -> str:
+        host, port = self._httpd.server_address[:2]
+        return f"http://{host}:{port}/"
+
+    def start(self) -> MapServer:
+        self._thread.start()
+        log.info("live map on %s", self.url)
+        return self
+
+    def close(self) -> None:
+        self._httpd.closing.set()
+        self._httpd.shutdown()
+        self._httpd.server_close()
+        self._thread.join(timeout=2.0)

@@ -1,0 +1,126 @@
+"""The live map's feed and server (mav_observer/outputs/web.py): what the page reads, the
+events it is sent, and that the service's side never waits for a page."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from mav_observer.core.samples import Estimate, Status
+from mav_observer.geo.geodesy import Origin
+from mav_observer.outputs.records import EstimateRecord
+from mav_observer.outputs.web import MapFeed, MapServer
+
+ORIGIN = Origin(-35.36, 149.16, 584.0, "GPS_GLOBAL_ORIGIN")
+
+
+def record(i: int, target: str = "gimbal", sysid: int = 1) -> EstimateRecord:
+    est = Estimate(
+        t_s=100.0 + i, x_m=np.array([20.0 + 0.01 * i, 10.0, 10.0]), a_mps=np.zeros(3),
+        range_m=24.5, excitation=0.1, cond_m=3.0, status=Status.CONVERGED, corrected=True,
+        bearing_age_s=0.0, velocity_age_s=0.0, correction_rel=0.0,
+        x_std_m=np.array([0.3, 0.2, 0.1]), a_std_mps=np.array([0.01] * 3), range_std_m=0.2,
+        nis=1.0,
+    )  # fmt: skip
+    return EstimateRecord(1.7e9 + i, 100.0 + i, sysid, target, "GIMBAL_DEVICE_ATTITUDE_STATUS",
+                          est, (float(i), 0.0, -10.0), ORIGIN)  # fmt: skip
+
+
+@pytest.fixture
+def server() -> Iterator[MapServer]:
+    srv = MapServer(MapFeed(max_clients=2, queue_len=4)).start()
+    try:
+        yield srv
+    finally:
+        srv.close()
+
+
+def get(url: str) -> tuple[int, bytes]:
+    try:
+        with urllib.request.urlopen(url, timeout=5) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, exc.read()
+
+
+def test_the_page_and_its_libraries_are_served_from_here_only(server: MapServer) -> None:
+    assert server.url.startswith("http://127.0.0.1:")
+    code, page = get(server.url)
+    assert code == 200 and b'src="/leaflet.js"' in page and b"window.MAP_CONFIG = {" in page
+    for path in ("leaflet.js", "map.js", "leaflet.css", "LICENSE-leaflet.txt"):
+        code, body = get(server.url + path)
+        assert (code == 200 and len(body) > 1000) or path == "LICENSE-leaflet.txt"
+    _, js = get(server.url + "map.js")
+    assert b"//cdn" not in js and b"https://" not in js  # nothing fetched from elsewhere
+
+
+def test_state_and_unknown_vehicles_and_targets(server: MapServer) -> None:
+    for i in range(3):
+        server.feed.add(record(i), yaw_rad=0.5, origin={"lat_deg": -35.36, "lon_deg": 149.16})
+    code, body = get(server.url + "state")
+    st = json.loads(body)
+    assert code == 200 and st["events"] == 3
+    tgt = st["targets"]["1/gimbal"]
+    assert tgt["record"]["target_pos_ned_m"] == pytest.approx([22.02, 10.0, 0.0])
+    assert len(tgt["history"]) == 3 and st["vehicles"]["1"]["yaw_deg"] == pytest.approx(
+        28.648, 1e-3
+    )
+    assert get(server.url + "vehicle/1")[0] == 200
+    assert get(server.url + "vehicle/7")[0] == 404
+    assert get(server.url + "target/1/gimbal")[0] == 200
+    assert get(server.url + "target/1/nope")[0] == 404
+    assert get(server.url + "nothing")[0] == 404
+
+
+def _events(url: str) -> socket.socket:
+    host, port = url.split("//")[1].rstrip("/").split(":")
+    s = socket.create_connection((host, int(port)), timeout=5)
+    s.sendall(b"GET /events HTTP/1.1\r\nHost: x\r\n\r\n")
+    return s
+
+
+def _read_until(s: socket.socket, needle: bytes, timeout_s: float = 5.0) -> bytes:
+    buf = b""
+    end = time.monotonic() + timeout_s
+    while needle not in buf and time.monotonic() < end:
+        buf += s.recv(65536)
+    return buf
+
+
+def test_events_reach_a_page_and_a_slow_page_loses_the_oldest(server: MapServer) -> None:
+    s = _events(server.url)
+    try:
+        assert b"200" in _read_until(s, b": connected")
+        server.feed.add(record(0))
+        got = _read_until(s, b"}}\n\n")
+        ev = json.loads(got.split(b"data: ", 1)[1].split(b"\n\n")[0])
+        assert ev["key"] == "1/gimbal" and ev["record"]["t_boot_s"] == 100.0
+        recs = [record(i) for i in range(1, 2000)]
+        t0 = time.perf_counter()
+        for r in recs:  # the page reads nothing meanwhile: add never waits
+            server.feed.add(r)
+        assert time.perf_counter() - t0 < 1.0
+        assert server.feed.dropped >= 1500  # (what the socket buffers took was not dropped)
+    finally:
+        s.close()
+
+
+def test_too_many_pages_are_refused_and_a_closed_one_is_let_go(server: MapServer) -> None:
+    a, b = _events(server.url), _events(server.url)
+    _read_until(a, b": connected")
+    _read_until(b, b": connected")
+    assert get(server.url + "events")[0] == 503  # the third
+    a.close()
+    b.close()
+    end = time.monotonic() + 5.0
+    while server.feed.snapshot()["clients"] and time.monotonic() < end:
+        server.feed.add(record(0))  # a write to a closed page ends its stream
+        time.sleep(0.1)
+    assert server.feed.snapshot()["clients"] == 0
