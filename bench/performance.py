@@ -7,6 +7,7 @@ Each figure is a ratio against a baseline measured in the same run, by its own s
 
 * ``step``: ``bench/observer_update.py`` (one converged velocity + bearing step, and the first
   10 s of a fresh estimator, through the public API, over one 3x3 ``numpy.linalg.inv``);
+* ``web``: ``bench/web_map.py`` (the live map's cost to the service, its delay, the report);
 * ``formats``: ``bench/log_formats_speed.py`` (replay of ``.bin`` and ``.ulg`` files against
   DFReader and pyulog);
 * ``replay``: ``bench/replay_throughput.py --quick`` (``mav-observer replay`` against a plain
@@ -71,6 +72,8 @@ def measure(skip: set[str]) -> dict[str, dict]:
         res["replay"] = _json_file(["bench/replay_throughput.py", "--quick"])
     if "formats" not in skip:
         res["formats"] = _json_file(["bench/log_formats_speed.py"])
+    if "web" not in skip:
+        res["web"] = _json_file(["bench/web_map.py"])
     if "latency" not in skip:
         res["latency"] = _json_file(["bench/service_latency.py", "--updates", "3000"])
     if "targets" not in skip:
@@ -121,6 +124,25 @@ def table(res: dict[str, dict]) -> str:
                 f"{big['speedup']:.2f}x ({small['speedup']:.2f}x)", f">= {goal:g}x",
                 min(big["speedup"], small["speedup"]) >= goal,
                 "python bench/log_formats_speed.py")  # fmt: skip
+    if "web" in res:
+        lat, tg, rep = res["web"]["latency"], res["web"]["targets"]["page"], res["web"]["report"]
+        row("service latency with the live map open in headless Chromium (on the same 2 cores) "
+            "over without it, same run; with `curl` reading the events instead",
+            f"p50 {lat['p50_ratio']:.2f}x, p99 {lat['p99_ratio']:.2f}x; curl: p50 "
+            f"{lat['reader_p50_ratio']:.2f}x, p99 {lat['reader_p99_ratio']:.2f}x",
+            "<= 1.1x", max(lat["p50_ratio"], lat["p99_ratio"]) <= 1.1,
+            "python bench/web_map.py")  # fmt: skip
+        row("an estimate published to the page's DOM showing it, median: 1 target at 100 Hz; "
+            "100 targets at 10 Hz", f"{lat['dom_latency_p50_ms']:.0f} ms; "
+            f"{tg['dom_latency_p50_ms']:.0f} ms", "< 200 ms",
+            max(lat["dom_latency_p50_ms"], tg["dom_latency_p50_ms"]) < 200.0,
+            "python bench/web_map.py")  # fmt: skip
+        row("100 targets at 10 Hz with the page open: estimates delivered, the service's CPU",
+            f"{100 * tg['received_share']:.2f} %, {tg['service_cpu_pct']:.0f} % of a core",
+            "100 %", tg["received_share"] >= 1.0, "python bench/web_map.py")  # fmt: skip
+        row("the map report of a one-hour replay: size, time to show it in headless Chromium",
+            f"{rep['bytes'] / 1e6:.1f} MB, {rep['open_s']:.2f} s", "< 20 MB, < 2 s",
+            rep["bytes"] < 20e6 and rep["open_s"] < 2.0, "python bench/web_map.py")  # fmt: skip
     if "latency" in res:
         d = res["latency"]
         base = d["baseline"]

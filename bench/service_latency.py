@@ -55,7 +55,7 @@ from _proc import connect_to_service, cpu_ticks, finish, print_log_tail, start_s
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
 from sim import emitter, scenarios  # noqa: E402
-from sim.live import free_port  # noqa: E402
+from sim.live import free_port, stop_process  # noqa: E402
 
 GOAL_P99_MS = 1.0
 RELAY = Path(__file__).resolve().parent / "_relay.py"
@@ -108,7 +108,10 @@ def start_relay(key_expr: str) -> tuple[subprocess.Popen[Any], int, int, Any]:
     return proc, mav_port, z_port, log
 
 
-def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
+def run(args: argparse.Namespace, *, relay: bool = False, web_page: str = "") -> dict[str, Any]:
+    """One run (``relay``: the baseline); ``web_page``: the service with its live map
+    (``--web``) open all along, in a headless Chromium (``"browser"``) or read by ``curl``
+    (``"reader"``: the events without a page's rendering) (``bench/web_map.py``)."""
     t_gen = time.perf_counter()
     plan, n_bearings = frames(args)
     keys = [k for _, _, k in plan if k is not None]
@@ -125,6 +128,9 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         svc, mav_port, z_port, log = start_relay(key_expr)
     else:
         extra = ["--estimate-rate-hz", "0", "--log-level", args.service_log_level]
+        if web_page:
+            web_port = free_port(socket.SOCK_STREAM)
+            extra += ["--web", f"127.0.0.1:{web_port}"]
         prefix = None
         if args.breakdown:
             timings = tempfile.NamedTemporaryFile(suffix=".json", delete=False)  # noqa: SIM115
@@ -133,11 +139,20 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         svc, mav_port, z_port, log = start_service(extra, prefix=prefix)
     session = None
     sock = None
+    page = reader = None
+    page_result: dict[str, float] = {}
     received: list[tuple[float, bytes]] = []
     sent_at: dict[int, float] = {}
     lateness: list[float] = []
     try:
         session = connect_to_service(svc, mav_port, z_port)
+        if web_page == "browser":
+            from _browser import open_page
+
+            page = open_page(f"http://127.0.0.1:{web_port}/")
+        elif web_page == "reader":
+            reader = subprocess.Popen(["curl", "-sN", f"http://127.0.0.1:{web_port}/events"],
+                                      stdout=subprocess.DEVNULL)  # fmt: skip
         sub = session.declare_subscriber(
             key_expr, lambda s: received.append((time.perf_counter(), s.payload.to_bytes()))
         )
@@ -164,7 +179,15 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         drops = (udp_socket_stats(mav_port) or (0, 0))[1]
         sub.undeclare()
         alive = svc.poll() is None
+        if page is not None:
+            from _browser import page_figures
+
+            page_result = page_figures(page)
     finally:
+        if page is not None:
+            page.quit()
+        if reader is not None:
+            stop_process(reader)
         code, service_log = finish(svc, log, sock, session)
     lat_ms: dict[int, float] = {}
     status_of: dict[int, str] = {}
@@ -223,6 +246,7 @@ def run(args: argparse.Namespace, *, relay: bool = False) -> dict[str, Any]:
         "service_alive_at_end": alive,
         "service_exit": code,
         "service_log_lines": service_log.count("\n"),
+        **page_result,
     }
     if not relay and args.breakdown:
         result["breakdown"] = _breakdown(Path(timings.name), args.warmup)

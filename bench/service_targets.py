@@ -31,7 +31,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from _proc import connect_to_service, cpu_ticks, finish, start_service  # noqa: E402
+from _proc import connect_to_service, cpu_ticks, finish, free_port, start_service  # noqa: E402
 from pymavlink.dialects.v20 import common as mavlink  # noqa: E402
 
 from mav_observer.mavlink.connection import udp_socket_stats  # noqa: E402
@@ -78,17 +78,26 @@ def plan(
     return out
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
+def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
+    """One run; ``web_page``: the service with its live map (``--web``) open in a headless
+    Chromium all along (``bench/web_map.py``)."""
     frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed)
     n_bearings = sum(1 for _, f in frames if _msgid(f) == mavlink.MAVLINK_MSG_ID_LANDING_TARGET)
-    svc, mav_port, z_port, log = start_service(
-        ["--estimate-rate-hz", "0", "--log-level", "WARNING"]
-    )
-    session = sock = None
+    extra = ["--estimate-rate-hz", "0", "--log-level", "WARNING"]
+    web_port = free_port(socket.SOCK_STREAM)
+    if web_page:
+        extra += ["--web", f"127.0.0.1:{web_port}"]
+    svc, mav_port, z_port, log = start_service(extra)
+    session = sock = page = None
+    page_result: dict[str, float] = {}
     per_target: Counter[str] = Counter()
     last_rx = [0.0]
     try:
         session = connect_to_service(svc, mav_port, z_port)
+        if web_page:
+            from _browser import open_page
+
+            page = open_page(f"http://127.0.0.1:{web_port}/")
 
         def on_estimate(s: Any) -> None:
             per_target[str(s.key_expr).split("/")[2]] += 1
@@ -114,9 +123,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             sleep(0.05)
         drain_s = max(last_rx[0] - t_end, 0.0)
         drops = (udp_socket_stats(mav_port) or (0, 0))[1]
+        if page is not None:
+            from _browser import page_figures
+
+            page_result = page_figures(page)
         stop_process(svc)
         sub.undeclare()
     finally:
+        if page is not None:
+            page.quit()
         code, service_log = finish(svc, log, sock, session)
     send_s = t_end - wall0
     tick = os.sysconf("SC_CLK_TCK")
@@ -137,6 +152,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "drain_after_last_send_s": drain_s,
         "service_exit": code,
         "service_log_tail": service_log.splitlines()[-3:],
+        **page_result,
     }
 
 

@@ -41,6 +41,8 @@ TRACK_POINTS = 300
 MAX_CLIENTS = 16
 #: Events queued for one page; beyond, the oldest go.
 QUEUE_LEN = 512
+#: A page is written to at most once per this long (s): its events come in batches.
+BATCH_S = 0.05
 STATIC = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/map.js": ("map.js", "text/javascript; charset=utf-8"),
@@ -220,13 +222,21 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.flush()
             while not self.server.closing.is_set():
                 try:
-                    event = q.get(timeout=0.5)
+                    batch = [q.get(timeout=0.5)]
                 except queue.Empty:
                     self.wfile.write(b": keep-alive\n\n")
                     self.wfile.flush()
                     continue
-                self.wfile.write(b"data: " + event.encode() + b"\n\n")
+                # what came meanwhile goes in the same write: a page costs the service a few
+                # wake-ups a second, not one per estimate
+                while True:
+                    try:
+                        batch.append(q.get_nowait())
+                    except queue.Empty:
+                        break
+                self.wfile.write(b"".join(b"data: " + e.encode() + b"\n\n" for e in batch))
                 self.wfile.flush()
+                time.sleep(BATCH_S)
         except (BrokenPipeError, ConnectionResetError, TimeoutError):
             pass  # the page went away
         finally:
