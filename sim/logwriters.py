@@ -31,6 +31,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from mav_observer.geo.frames import euler_from_dcm, quat_from_euler, quat_to_dcm
 from mav_observer.mavlink.dialect import MSG_ID
 from mav_observer.mavlink.tlog import TlogReader
 
@@ -165,26 +166,6 @@ _WANTED = (
 _YAW_IN_EARTH = 64
 #: The target a converted log's reader names, where it differs: (format, the tlog's target).
 TARGET_IN = {("bin", "gimbal"): "mount", ("bin", "mount"): "mount"}
-
-
-def _quat_euler(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
-    w, x, y, z = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
-
-
-def _euler_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
 
 
 def _heading(messages: list[tuple[float, Any]]) -> Callable[[float], float]:
@@ -329,7 +310,7 @@ def _write_df(
     else:
         tb = m.time_boot_ms * 1e-3
         if mtype == "GIMBAL_DEVICE_ATTITUDE_STATUS":
-            roll, pitch, yaw = _quat_euler(tuple(m.q))
+            roll, pitch, yaw = euler_from_dcm(quat_to_dcm(tuple(m.q)))
             if m.flags & _YAW_IN_EARTH:
                 yaw_e, yaw_b = yaw, yaw - heading(tb)
             else:
@@ -365,7 +346,7 @@ def _write_ulog(ul: ULogWriter, m: Any, origin: tuple[float, float, float] | Non
              int(origin is not None), 0),
         )  # fmt: skip
     elif mtype == "ATTITUDE":
-        ul.write("vehicle_attitude", (t_us, _euler_quat(m.roll, m.pitch, m.yaw)))
+        ul.write("vehicle_attitude", (t_us, quat_from_euler(m.roll, m.pitch, m.yaw)))
     elif mtype == "GIMBAL_DEVICE_ATTITUDE_STATUS":
         ul.write(
             "gimbal_device_attitude_status",

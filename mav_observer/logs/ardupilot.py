@@ -59,6 +59,17 @@ def _sorted(
     return t[order], {k: v[order] for k, v in cols.items()}
 
 
+def _read(
+    log: DataFlashLog, name: str, needed: set[str]
+) -> tuple[np.ndarray[Any, Any], dict[str, np.ndarray[Any, Any]]] | None:
+    """Record type ``name``'s times and columns in time order, ``None`` when the log has none
+    or they lack a time or one of the ``needed`` columns."""
+    cols = log.columns(name)
+    if cols is None or not needed <= cols.keys():
+        return None
+    return _sorted(log, cols)
+
+
 def streams(log: DataFlashLog, notes: list[str]) -> list[Stream]:
     """The log's messages as :class:`Stream` s; what it lacks, or how it was read, appended
     to ``notes``."""
@@ -116,12 +127,9 @@ def _position(log: DataFlashLog, notes: list[str]) -> list[Stream]:
 
 
 def _attitude(log: DataFlashLog, notes: list[str]) -> list[Stream]:
-    cols = log.columns("ATT")
-    if cols is None or not {"Roll", "Pitch", "Yaw"} <= cols.keys():
-        notes.append("no ATT record: no vehicle attitude")
-        return []
-    got = _sorted(log, cols)
+    got = _read(log, "ATT", {"Roll", "Pitch", "Yaw"})
     if got is None:
+        notes.append("no ATT record: no vehicle attitude")
         return []
     t, c = got
     roll = np.radians(c["Roll"].astype(float)).tolist()
@@ -135,10 +143,7 @@ def _attitude(log: DataFlashLog, notes: list[str]) -> list[Stream]:
 
 
 def _origin(log: DataFlashLog, notes: list[str]) -> list[Stream]:
-    cols = log.columns("ORGN")
-    if cols is None or not {"Lat", "Lng", "Alt"} <= cols.keys():
-        return []
-    got = _sorted(log, cols)
+    got = _read(log, "ORGN", {"Lat", "Lng", "Alt"})
     if got is None:
         return []
     t, c = got
@@ -169,10 +174,7 @@ def _origin(log: DataFlashLog, notes: list[str]) -> list[Stream]:
 
 
 def _global_position(log: DataFlashLog) -> list[Stream]:
-    cols = log.columns("POS")
-    if cols is None or not {"Lat", "Lng", "Alt"} <= cols.keys():
-        return []
-    got = _sorted(log, cols)
+    got = _read(log, "POS", {"Lat", "Lng", "Alt"})
     if got is None:
         return []
     t, c = got
