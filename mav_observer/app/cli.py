@@ -5,6 +5,8 @@ Sub-commands:
 * ``run``: the service: MAVLink in, estimates out over Zenoh, until stopped
   (``docs/service.md``).
 * ``listen [KEY_EXPR]``: print what a running service publishes.
+* ``map``: the live map of what a running service publishes, over Zenoh
+  (:mod:`mav_observer.app.map_cmd`).
 * ``demo``: the emitter, the service and a subscriber on loopback, with a live table of
   estimate against truth until converged (the simulator lives in the separate ``sim``
   package and runs as its own process, ``python -m sim live``; ``mav_observer`` never
@@ -109,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--quiet", "-q", action="store_true", help="no progress bar, no summary")
     _add_run_parser(sub)
     _add_listen_parser(sub)
+    from mav_observer.app import map_cmd
+
+    map_cmd.add_parser(sub)
     sub.add_parser("version", help="print the version")
     return parser
 
@@ -362,7 +367,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     conf = zenoh_io.session_config(
         config_file=z["config_file"], mode=z["mode"], listen=z["listen"], connect=z["connect"]
     )
-    web = _web_server(args.web, args.web_tiles)
+    web = web_server(args.web, args.web_tiles)
     session = zenoh_io.open_session(conf)
     try:
         service = Service.from_settings(settings, session)
@@ -384,7 +389,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _web_server(listen: str | None, tiles: str | None) -> Any:
+def web_server(listen: str | None, tiles: str | None) -> Any:
     """The live map's server on ``HOST:PORT`` (started), or ``None``; a bad address is a
     :class:`ConfigError` naming it."""
     if listen is None:
@@ -473,6 +478,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "listen":
             return cmd_listen(args)
+        if args.command == "map":
+            from mav_observer.app.map_cmd import cmd_map
+
+            return cmd_map(args)
     except ConfigError as exc:  # a setting or flag that cannot be: a usage error
         print(f"mav-observer: {exc}", file=sys.stderr)
         return 2

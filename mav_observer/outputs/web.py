@@ -69,6 +69,8 @@ class MapFeed:
         self.queue_len = queue_len
         self.dropped = 0
         self.events = 0
+        #: published texts that were not estimate records (``add_published``)
+        self.bad = 0
 
     def add(
         self,
@@ -80,28 +82,55 @@ class MapFeed:
         """An estimate the service published (``rec_json``: its JSON, when already made), the
         vehicle's heading at its time, its origin. A dictionary update and a put per page."""
         text = rec.to_json() if rec_json is None else rec_json
-        key = f"{rec.sysid}/{rec.target}"
         yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
-        vp = rec.vehicle_pos_ned_m
         tp = rec.target_pos_ned_m
+        self._add(rec.sysid, rec.target, rec.t_boot_s, rec.vehicle_pos_ned_m, tp,
+                  str(rec.estimate.status), yaw, origin, text)  # fmt: skip
+
+    def add_published(self, text: str) -> None:
+        """An estimate record as a service published it (its JSON, ``docs/schema.md``:
+        ``mav-observer map``); one that is not such a record is counted in :attr:`bad`."""
+        try:
+            d = json.loads(text)
+            sysid, target = int(d["sysid"]), str(d["target"])
+            t, status = float(d["t_boot_s"]), str(d["status"])
+            vp, tp = d.get("vehicle_pos_ned_m"), d.get("target_pos_ned_m")
+        except (ValueError, KeyError, TypeError):
+            self.bad += 1
+            return
+        self._add(sysid, target, t, vp, tp, status, None, None, text)
+
+    def _add(
+        self,
+        sysid: int,
+        target: str,
+        t_boot_s: float,
+        vp: Any,
+        tp: Any,
+        status: str,
+        yaw: float | None,
+        origin: dict[str, Any] | None,
+        text: str,
+    ) -> None:
+        key = f"{sysid}/{target}"
         with self._lock:
-            veh = self._vehicles.get(rec.sysid)
+            veh = self._vehicles.get(sysid)
             if veh is None:
-                veh = self._vehicles[rec.sysid] = {"track": deque(maxlen=TRACK_POINTS)}
+                veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
             if origin is not None and veh.get("origin") != origin:
                 veh["origin"] = origin
                 veh["origin_json"] = json.dumps(origin)
             if vp is not None:
                 veh["pos_ned_m"] = [float(v) for v in vp]
                 veh["yaw_deg"] = yaw
-                veh["t_boot_s"] = rec.t_boot_s
+                veh["t_boot_s"] = t_boot_s
                 veh["track"].append([float(vp[0]), float(vp[1])])
             tgt = self._targets.get(key)
             if tgt is None:
                 tgt = self._targets[key] = {"history": deque(maxlen=TRACK_POINTS)}
             tgt["record_json"] = text
             if tp is not None:
-                tgt["history"].append([float(tp[0]), float(tp[1]), str(rec.estimate.status)])
+                tgt["history"].append([float(tp[0]), float(tp[1]), status])
             self.events += 1
             clients = list(self._clients)
             origin_json = veh.get("origin_json", "null")

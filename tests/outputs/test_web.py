@@ -124,3 +124,15 @@ def test_too_many_pages_are_refused_and_a_closed_one_is_let_go(server: MapServer
         server.feed.add(record(0))  # a write to a closed page ends its stream
         time.sleep(0.1)
     assert server.feed.snapshot()["clients"] == 0
+
+
+def test_a_published_record_feeds_the_page_and_garbage_is_counted() -> None:
+    """``mav-observer map``'s path: the JSON the service published, not a record object."""
+    feed = MapFeed()
+    feed.add_published(record(3).to_json())
+    feed.add_published("not json")
+    feed.add_published('{"sysid": 1}')
+    st = feed.snapshot()
+    assert st["events"] == 1 and feed.bad == 2
+    assert st["targets"]["1/gimbal"]["record"]["t_boot_s"] == 103.0
+    assert st["vehicles"]["1"]["pos_ned_m"] == [3.0, 0.0, -10.0]

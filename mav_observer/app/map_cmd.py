@@ -1,0 +1,75 @@
+"""``mav-observer map``: the live map on any machine that reaches the service over Zenoh.
+
+A Zenoh session (a peer connecting to the service's endpoint, no scouting) subscribes to the
+estimates ``PREFIX/*/*/estimate`` and feeds the page of :mod:`mav_observer.outputs.web`,
+served on ``--web HOST:PORT`` (loopback by default); the service itself then serves no page
+and spends nothing on one. What the page shows is what the service published.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+import time
+from typing import Any
+
+from mav_observer.errors import ConfigError
+
+
+def add_parser(sub: Any) -> None:
+    mp = sub.add_parser(
+        "map",
+        help="a live map in the browser of what a running service publishes (over Zenoh)",
+        description="Subscribe to a service's estimates over Zenoh and serve the live map at "
+        "http://HOST:PORT/ (docs/service.md, 'The live map').",
+    )
+    mp.add_argument("--web", default="127.0.0.1:8765", metavar="HOST:PORT")
+    mp.add_argument("--web-tiles", metavar="URL", help="a {z}/{x}/{y} tile layer (default none)")
+    mp.add_argument(
+        "--connect",
+        action="append",
+        help="Zenoh endpoint of the service (repeatable; default tcp/127.0.0.1:7447)",
+    )
+    mp.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file instead")
+    mp.add_argument("--mode", choices=("peer", "client"), default="peer")
+    mp.add_argument(
+        "--wait-s", type=float, default=30.0, help="keep trying to reach the service this long"
+    )
+    mp.add_argument("--prefix", default="mav_observer", help="the service's key prefix")
+    mp.add_argument("--duration", type=float, help="stop after this many seconds")
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    from mav_observer.app.cli import web_server
+    from mav_observer.outputs import zenoh_io
+
+    web = web_server(args.web, args.web_tiles)
+    if web is None:  # (--web has a default)
+        raise ConfigError("map needs --web HOST:PORT")
+    connect = args.connect or (None if args.zenoh_config else [zenoh_io.DEFAULT_ENDPOINT])
+    conf = zenoh_io.session_config(
+        config_file=args.zenoh_config,
+        mode=args.mode,
+        listen=None if args.zenoh_config else [],
+        connect=connect,
+    )
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    session = zenoh_io.open_session(conf, retry_s=args.wait_s)
+    try:
+        feed = web.feed
+        sub = session.declare_subscriber(
+            f"{args.prefix}/*/*/estimate",
+            lambda s: feed.add_published(s.payload.to_bytes().decode()),
+        )
+        print(f"live map on {web.url} (estimates of {args.prefix}/*/*/estimate)", flush=True)
+        end = None if args.duration is None else time.monotonic() + args.duration
+        while not stop.is_set() and (end is None or time.monotonic() < end):
+            stop.wait(0.2)
+        sub.undeclare()
+    finally:
+        session.close()
+        web.close()
+    return 0
