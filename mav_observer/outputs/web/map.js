@@ -12,10 +12,13 @@
   var vehicles = {};
   var targets = {};
   var pending = {};
+  var waiting = {};
   var scheduled = false;
   var latencies = [];
   var events = 0;
   var fitted = false;
+  // the page redraws at most this often: a browser beside the service takes little of its CPU
+  var REDRAW_MS = 100;
 
   function toLL(n, e) {
     if (mode === "tiles") {
@@ -169,9 +172,10 @@
       var rec = ev.record;
       showVehicle(rec.sysid, rec.vehicle_pos_ned_m, ev.yaw_deg, null);
       showTarget(key, rec, null);
-      latencies.push(now - ev.sent_ms);
+      latencies.push(now - waiting[key]);  // published to shown, the oldest event of the batch
     }
     pending = {};
+    waiting = {};
     if (latencies.length > 500) { latencies = latencies.slice(-500); }
     var s = latencies.slice().sort(function (a, b) { return a - b; });
     var med = s.length ? s[Math.floor(s.length / 2)] : null;
@@ -187,8 +191,9 @@
     var ev = JSON.parse(msg.data);
     events += 1;
     if (ev.origin) { setOrigin(ev.origin); }
+    if (!pending[ev.key]) { waiting[ev.key] = ev.sent_ms; }  // the oldest not yet shown
     pending[ev.key] = ev;
-    if (!scheduled) { scheduled = true; setTimeout(apply, 10); }
+    if (!scheduled) { scheduled = true; setTimeout(apply, REDRAW_MS); }
   }
 
   function live() {
