@@ -74,7 +74,7 @@ def streams(ulog: Any, notes: list[str]) -> list[Stream]:
     if lp is None:
         notes.append("no vehicle_local_position: no velocity")
     else:
-        out += _local_position(lp)
+        out += _local_position(lp, notes)
     att = _topic(ulog, "vehicle_attitude")
     if att is None:
         notes.append("no vehicle_attitude: no vehicle attitude")
@@ -106,9 +106,15 @@ def streams(ulog: Any, notes: list[str]) -> list[Stream]:
     return out
 
 
-def _local_position(lp: dict[str, np.ndarray[Any, Any]]) -> list[Stream]:
+def _local_position(lp: dict[str, np.ndarray[Any, Any]], notes: list[str]) -> list[Stream]:
     t = lp["timestamp"].astype(np.int64)
     valid = (_arr(lp, "xy_valid", 1) != 0) & (_arr(lp, "v_xy_valid", 1) != 0)
+    invalid = int(np.count_nonzero(~valid))
+    if invalid:  # the estimator's own word: such a position or velocity is not to be used
+        notes.append(
+            f"vehicle_local_position: {invalid} of {len(t)} samples without xy_valid and "
+            "v_xy_valid, not used"
+        )
     x, y, z, vx, vy, vz = (lp[k].astype(float).tolist() for k in
                            ("x", "y", "z", "vx", "vy", "vz"))  # fmt: skip
     ms = (t // 1000).tolist()
