@@ -6,6 +6,7 @@ import socket
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -17,6 +18,18 @@ def free_tcp_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def http_json(url: str) -> Any:
+    """The JSON at ``url`` (a page on 127.0.0.1), ``None`` while nothing answers there."""
+    import json
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(url, timeout=2) as r:
+            return json.loads(r.read())
+    except OSError:
+        return None
 
 
 def wait_for(cond: Callable[[], object], timeout_s: float = 3.0) -> bool:

@@ -183,23 +183,43 @@ def _add_listen_parser(sub: Any) -> None:
         "status and liveliness changes as a table or JSON lines.",
     )
     ls.add_argument("key_expr", nargs="?", default="mav_observer/**")
-    ls.add_argument(
+    add_zenoh_client_args(ls, wait_s=10.0)
+    ls.add_argument("--json", action="store_true", help="JSON lines instead of a table")
+    ls.add_argument("--count", type=int, help="stop after this many samples")
+    ls.add_argument("--duration", type=float, help="stop after this many seconds")
+
+
+def add_zenoh_client_args(p: argparse.ArgumentParser, wait_s: float) -> None:
+    """How a command that reads a running service reaches it over Zenoh (``listen``, ``map``)."""
+    p.add_argument(
         "--connect",
         action="append",
         metavar="ENDPOINT",
         help="where the service (or a router) listens (default tcp/127.0.0.1:7447)",
     )
-    ls.add_argument("--mode", choices=("peer", "client"), default="peer")
-    ls.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file")
-    ls.add_argument("--json", action="store_true", help="JSON lines instead of a table")
-    ls.add_argument(
+    p.add_argument("--mode", choices=("peer", "client"), default="peer")
+    p.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file")
+    p.add_argument(
         "--wait-s",
         type=float,
-        default=10.0,
-        help="client mode: keep trying to reach the router this long",
+        default=wait_s,
+        help="keep trying to reach the service (or the router) this long",
     )
-    ls.add_argument("--count", type=int, help="stop after this many samples")
-    ls.add_argument("--duration", type=float, help="stop after this many seconds")
+
+
+def zenoh_client_session(args: argparse.Namespace) -> Any:
+    """The Zenoh session of :func:`add_zenoh_client_args`' options: no scouting, no listening
+    (unless a configuration file says otherwise), connecting to ``--connect``."""
+    from mav_observer.outputs import zenoh_io
+
+    connect = args.connect or (None if args.zenoh_config else [zenoh_io.DEFAULT_ENDPOINT])
+    conf = zenoh_io.session_config(
+        config_file=args.zenoh_config,
+        mode=args.mode,
+        listen=None if args.zenoh_config else [],
+        connect=connect,
+    )
+    return zenoh_io.open_session(conf, retry_s=args.wait_s)
 
 
 def _number_or_auto(text: str) -> float | str:
@@ -414,16 +434,8 @@ def cmd_listen(args: argparse.Namespace) -> int:
     import threading
 
     from mav_observer.app.listen import listen
-    from mav_observer.outputs import zenoh_io
 
-    connect = args.connect or (None if args.zenoh_config else [zenoh_io.DEFAULT_ENDPOINT])
-    conf = zenoh_io.session_config(
-        config_file=args.zenoh_config,
-        mode=args.mode,
-        listen=None if args.zenoh_config else [],
-        connect=connect,
-    )
-    session = zenoh_io.open_session(conf, retry_s=args.wait_s)
+    session = zenoh_client_session(args)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:

@@ -18,6 +18,8 @@ from mav_observer.errors import ConfigError
 
 
 def add_parser(sub: Any) -> None:
+    from mav_observer.app.cli import add_zenoh_client_args
+
     mp = sub.add_parser(
         "map",
         help="a live map in the browser of what a running service publishes (over Zenoh)",
@@ -26,38 +28,21 @@ def add_parser(sub: Any) -> None:
     )
     mp.add_argument("--web", default="127.0.0.1:8765", metavar="HOST:PORT")
     mp.add_argument("--web-tiles", metavar="URL", help="a {z}/{x}/{y} tile layer (default none)")
-    mp.add_argument(
-        "--connect",
-        action="append",
-        help="Zenoh endpoint of the service (repeatable; default tcp/127.0.0.1:7447)",
-    )
-    mp.add_argument("--zenoh-config", help="a Zenoh JSON5 configuration file instead")
-    mp.add_argument("--mode", choices=("peer", "client"), default="peer")
-    mp.add_argument(
-        "--wait-s", type=float, default=30.0, help="keep trying to reach the service this long"
-    )
+    add_zenoh_client_args(mp, wait_s=30.0)
     mp.add_argument("--prefix", default="mav_observer", help="the service's key prefix")
     mp.add_argument("--duration", type=float, help="stop after this many seconds")
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from mav_observer.app.cli import web_server
-    from mav_observer.outputs import zenoh_io
+    from mav_observer.app.cli import web_server, zenoh_client_session
 
     web = web_server(args.web, args.web_tiles)
     if web is None:  # (--web has a default)
         raise ConfigError("map needs --web HOST:PORT")
-    connect = args.connect or (None if args.zenoh_config else [zenoh_io.DEFAULT_ENDPOINT])
-    conf = zenoh_io.session_config(
-        config_file=args.zenoh_config,
-        mode=args.mode,
-        listen=None if args.zenoh_config else [],
-        connect=connect,
-    )
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    session = zenoh_io.open_session(conf, retry_s=args.wait_s)
+    session = zenoh_client_session(args)
     try:
         feed = web.feed
         sub = session.declare_subscriber(

@@ -18,12 +18,13 @@ from __future__ import annotations
 import mmap
 import os
 import struct
-from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from mav_observer.logs.formats import LogStats
 
 HEAD1, HEAD2 = 0xA3, 0x95
 FMT_TYPE = 0x80
@@ -69,30 +70,6 @@ class Format:
         return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": off})
 
 
-@dataclass
-class DataFlashStats:
-    """What a read found: records by type name, and the damage."""
-
-    records: int = 0
-    bytes_total: int = 0
-    resyncs: int = 0
-    skipped_bytes: int = 0
-    truncated_tail: bool = False
-    fmt_conflicts: int = 0
-    no_format: int = 0
-    by_name: Counter[str] = field(default_factory=Counter)
-
-    def damage(self) -> dict[str, int]:
-        out = {
-            "resyncs": self.resyncs,
-            "skipped_bytes": self.skipped_bytes,
-            "truncated_tail": int(self.truncated_tail),
-            "fmt_conflicts": self.fmt_conflicts,
-            "records_without_format": self.no_format,
-        }
-        return {k: v for k, v in out.items() if v}
-
-
 def _parse_fmt(a: np.ndarray[Any, Any], pos: int) -> Format | None:
     """The FMT record at ``pos``, or ``None`` if the bytes there are not a sound one."""
     if pos + FMT_LENGTH > len(a):
@@ -122,7 +99,7 @@ class DataFlashLog:
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        self.stats = DataFlashStats()
+        self.stats = LogStats(format="DataFlash")
         self.formats: dict[int, Format] = {}
         with open(self.path, "rb") as fh:
             size = os.fstat(fh.fileno()).st_size
@@ -156,7 +133,7 @@ class DataFlashLog:
             if old is None:
                 self.formats[f.type] = f
             elif old != f:
-                st.fmt_conflicts += 1
+                st.count_damage("fmt_conflicts")
         if not self.formats:
             raise DataFlashError("no DataFlash format (FMT) record in it")
         lengths = np.zeros(256, np.int64)
@@ -213,7 +190,7 @@ class DataFlashLog:
         while True:
             length = len_l[i]
             if length == 0:  # a type without a format: junk, or a format lost
-                st.no_format += 1
+                st.count_damage("records_without_format")
                 end = cand_l[i]
             elif not fits_l[i]:  # cut by the end of the file
                 st.truncated_tail = True

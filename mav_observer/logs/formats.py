@@ -46,6 +46,9 @@ class LogStats:
     first_t_unix_s: float | None = None
     last_t_unix_s: float | None = None
 
+    def count_damage(self, kind: str) -> None:
+        self.other_damage[kind] = self.other_damage.get(kind, 0) + 1
+
     def damage(self) -> dict[str, int]:
         out = {
             "resyncs": self.resyncs,
@@ -136,14 +139,7 @@ class LogReader:
                 log = DataFlashLog(self.path)
             except DataFlashError as exc:
                 raise LogFormatError(str(exc)) from exc
-            s = log.stats
-            self.stats = LogStats(
-                format="DataFlash", records=s.records, bytes_total=s.bytes_total,
-                resyncs=s.resyncs, skipped_bytes=s.skipped_bytes,
-                truncated_tail=s.truncated_tail, by_name=s.by_name,
-                other_damage={k: v for k, v in s.damage().items()
-                              if k not in ("resyncs", "skipped_bytes", "truncated_tail")},
-            )  # fmt: skip
+            self.stats = log.stats
             streams = ardupilot.streams(log, self.stats.notes)
         elif kind == "ulog":
             from mav_observer.logs import px4

@@ -4,29 +4,18 @@ started here is ended here."""
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import threading
-import time
-import urllib.request
 from pathlib import Path
-from typing import Any
 
 import pytest
+from conftest import http_json, wait_for
 
 from sim import emitter, scenarios
 from sim.live import free_port, service_command, stop_process
 
 pytestmark = pytest.mark.slow
-
-
-def _state(url: str) -> Any:
-    try:
-        with urllib.request.urlopen(url + "state", timeout=2) as r:
-            return json.loads(r.read())
-    except OSError:
-        return None
 
 
 def test_the_map_command_shows_the_services_estimates(tmp_path: Path) -> None:
@@ -43,9 +32,7 @@ def test_the_map_command_shows_the_services_estimates(tmp_path: Path) -> None:
     stop = threading.Event()
     try:
         url = f"http://127.0.0.1:{web}/"
-        end = time.monotonic() + 60
-        while _state(url) is None and time.monotonic() < end:
-            time.sleep(0.2)
+        assert wait_for(lambda: http_json(url + "state") is not None, 60.0)
         em = emitter.Emitter(
             scenarios.orbit(duration_s=60.0),
             emitter.EmitterConfig(bearing="gimbal", duration_s=60.0, bearing_noise_deg=0.5),
@@ -55,11 +42,9 @@ def test_the_map_command_shows_the_services_estimates(tmp_path: Path) -> None:
                                       "stop": stop})  # fmt: skip
         th.start()
         th.join(timeout=60)
-        end = time.monotonic() + 20
-        st = _state(url)
-        while (st is None or "1/gimbal" not in st["targets"]) and time.monotonic() < end:
-            time.sleep(0.2)
-            st = _state(url)
+        wait_for(lambda: "1/gimbal" in (http_json(url + "state") or {"targets": {}})["targets"],
+                 20.0)  # fmt: skip
+        st = http_json(url + "state")
         assert st is not None and "1/gimbal" in st["targets"], log.read_text()
         rec = st["targets"]["1/gimbal"]["record"]
         assert rec["sysid"] == 1 and rec["status"] in ("converged", "converging")

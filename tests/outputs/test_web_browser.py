@@ -8,7 +8,6 @@ skip on a developer's machine and fail under CI."""
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
@@ -20,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import http_json, wait_for
 
 from mav_observer.app import replay as rp
 from sim import emitter, scenarios
@@ -62,16 +62,6 @@ def figures(tmp_path: Path) -> Path:
     return Path(d) if d else tmp_path
 
 
-def _wait(cond: Any, timeout_s: float = 20.0) -> Any:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        got = cond()
-        if got:
-            return got
-        time.sleep(0.1)
-    return cond()
-
-
 def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: Path) -> None:
     mav, zen, web = free_port(), free_port(), free_port()
     log = tmp_path / "service.log"
@@ -83,7 +73,7 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
     stop = threading.Event()
     try:
         url = f"http://127.0.0.1:{web}/"
-        assert _wait(lambda: _get(url + "state") is not None, 60.0), log.read_text()
+        assert wait_for(lambda: http_json(url + "state") is not None, 60.0), log.read_text()
         em = emitter.Emitter(
             scenarios.orbit(duration_s=120.0),
             emitter.EmitterConfig(bearing="gimbal", duration_s=120.0, bearing_noise_deg=0.5),
@@ -94,10 +84,9 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
         th.start()
         browser.get(url)
         row = 'tr[data-key="1/gimbal"]'
-        assert _wait(lambda: browser.find_elements("css selector", row + "[data-n]")), (
-            log.read_text()
-        )
-        assert _wait(lambda: browser.find_element("css selector", row).get_attribute(
+        appeared = wait_for(lambda: browser.find_elements("css selector", row + "[data-n]"), 20.0)
+        assert appeared, log.read_text()
+        assert wait_for(lambda: browser.find_element("css selector", row).get_attribute(
             "data-status") == "converged", 60.0)  # fmt: skip
         time.sleep(1.0)
         stop.set()
@@ -105,7 +94,7 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
         time.sleep(1.0)  # the last events reach the page
         el = browser.find_element("css selector", row)
         shown = {k: float(el.get_attribute(f"data-{k}")) for k in ("n", "e", "t")}
-        st = _get(url + "state")
+        st = http_json(url + "state")
         published = st["targets"]["1/gimbal"]["record"]
         assert shown["t"] == pytest.approx(published["t_boot_s"], abs=1e-6)
         assert shown["n"] == pytest.approx(published["target_pos_ned_m"][0], abs=1e-6)
@@ -116,16 +105,6 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
     finally:
         stop.set()
         stop_process(proc)
-
-
-def _get(url: str) -> Any:
-    import urllib.request
-
-    try:
-        with urllib.request.urlopen(url, timeout=2) as r:
-            return json.loads(r.read())
-    except OSError:
-        return None
 
 
 def test_the_replay_report_opens_from_disk(browser: Any, tmp_path: Path) -> None:
@@ -141,7 +120,8 @@ def test_the_replay_report_opens_from_disk(browser: Any, tmp_path: Path) -> None
     assert final is not None
     t0 = time.perf_counter()
     browser.get(report.as_uri())
-    assert _wait(lambda: browser.find_element("tag name", "body").get_attribute("data-ready"))
+    body = browser.find_element("tag name", "body")
+    assert wait_for(lambda: body.get_attribute("data-ready"), 20.0)
     opened_s = time.perf_counter() - t0
     el = browser.find_element("css selector", 'tr[data-key="1/gimbal"]')
     assert el.get_attribute("data-status") == "converged"
