@@ -12,6 +12,7 @@ Each figure is a ratio against a baseline measured in the same run, by its own s
   DFReader and pyulog);
 * ``replay``: ``bench/replay_throughput.py --quick`` (``mav-observer replay`` against a plain
   pymavlink loop over the same file, whole processes);
+* ``fleet``: ``bench/fleet_live.py`` (a ray to its fused estimate through a Zenoh router);
 * ``latency``: ``bench/service_latency.py --updates 3000`` (the service against a relay that
   only forwards each datagram);
 * ``targets``: ``bench/service_targets.py`` (100 targets at 30 Hz);
@@ -74,6 +75,8 @@ def measure(skip: set[str]) -> dict[str, dict]:
         res["formats"] = _json_file(["bench/log_formats_speed.py"])
     if "web" not in skip:
         res["web"] = _json_file(["bench/web_map.py"])
+    if "fleet" not in skip:
+        res["fleet"] = _json_file(["bench/fleet_live.py"])
     if "latency" not in skip:
         res["latency"] = _json_file(["bench/service_latency.py", "--updates", "3000"])
     if "targets" not in skip:
@@ -143,6 +146,12 @@ def table(res: dict[str, dict]) -> str:
         row("the map report of a one-hour replay: size, time to show it in headless Chromium",
             f"{rep['bytes'] / 1e6:.1f} MB, {rep['open_s']:.2f} s", "< 20 MB, < 2 s",
             rep["bytes"] < 20e6 and rep["open_s"] < 2.0, "python bench/web_map.py")  # fmt: skip
+    if "fleet" in res:
+        fl = res["fleet"]
+        row("a vehicle's ray to its fused estimate in a third process, through a Zenoh router on "
+            "loopback (every process its own session), median (p90)",
+            f"{fl['latency_ms_p50']:.1f} ms ({fl['latency_ms_p90']:.1f} ms)", "< 20 ms",
+            fl["latency_ms_p50"] < 20.0, "python bench/fleet_live.py")  # fmt: skip
     if "latency" in res:
         d = res["latency"]
         base = d["baseline"]

@@ -7,6 +7,9 @@
   :mod:`sim.live`).
 * ``emit``: send a scenario as MAVLink (a vehicle and its gimbal or camera) to a pymavlink
   output string and/or a tlog, with the truth as JSON Lines.
+* ``fleet``: two or three vehicles, each with its own system id, clock, velocity error and
+  EKF origin, watching one ground target on the WGS84 earth (:mod:`sim.fleet`), as tlogs
+  with the fleet's truth and/or live links, one per vehicle.
 * ``convert``: a tlog's flight as an ArduPilot ``.bin`` or PX4 ``.ulg`` (:mod:`sim.logwriters`).
 * ``inject``: add a synthetic bearing stream toward a fixed local NED point to a real tlog
   (:mod:`sim.inject`), with the truth as JSON Lines.
@@ -152,6 +155,52 @@ def cmd_emit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _drop(text: str) -> tuple[int, float]:
+    sysid, _, t = text.partition("@")
+    try:
+        return int(sysid), float(t)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SYSID@SECONDS, got {text!r}") from None
+
+
+def _clock_offset(text: str) -> tuple[int, float]:
+    sysid, _, s = text.partition("=")
+    try:
+        return int(sysid), float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SYSID=SECONDS, got {text!r}") from None
+
+
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from sim import fleet
+
+    to = [u for u in (args.to or "").split(",") if u]
+    if not (to or args.tlog_dir):
+        raise SystemExit("python -m sim fleet: give --to and/or --tlog-dir")
+    try:
+        fl = fleet.make_fleet(
+            args.fleet,
+            vehicles=args.vehicles,
+            seed=args.seed,
+            duration_s=args.duration,
+            bearing_noise_deg=args.bearing_noise_deg,
+            drop=args.drop,
+            clock_offsets_s=dict(args.clock_offset or []),
+        )
+        if to and len(to) != len(fl.members):
+            raise ValueError(f"--to needs {len(fl.members)} outputs (one per vehicle)")
+    except ValueError as exc:
+        print(f"python -m sim fleet: {exc}", file=sys.stderr)
+        return 2
+    if args.tlog_dir:
+        paths = fleet.write_tlogs(fl, Path(args.tlog_dir))
+        print(f"wrote {', '.join(str(p) for p in paths)}")
+    if to:
+        fleet.run_live(fl, to, speed=args.speed)
+        print(f"sent {args.duration:g} s of {args.fleet} ({len(to)} vehicles) to {', '.join(to)}")
+    return 0
+
+
 def _triple(text: str) -> tuple[float, float, float]:
     try:
         parts = tuple(float(v) for v in text.split(","))
@@ -273,6 +322,33 @@ def build_parser() -> argparse.ArgumentParser:
         help="a rangefinder on the gimbal: DISTANCE_SENSOR with each bearing, this noise (m)",
     )
     em.set_defaults(func=cmd_emit)
+    fl = sub.add_parser(
+        "fleet", help="two or three vehicles watching one target (tlogs and/or live links)"
+    )
+    fl.add_argument("--fleet", default="fleet_hover", choices=("fleet_hover", "fleet_moving"))
+    fl.add_argument("--vehicles", type=int, default=2, choices=(1, 2, 3))
+    fl.add_argument("--duration", type=float, default=30.0, help="simulated seconds")
+    fl.add_argument("--seed", type=int, default=0)
+    fl.add_argument("--bearing-noise-deg", type=float, default=0.5)
+    fl.add_argument("--tlog-dir", help="write vehicle_<sysid>.tlog and the fleet's truth here")
+    fl.add_argument(
+        "--to",
+        help="one pymavlink output per vehicle, comma-separated, e.g. "
+        "udpout:127.0.0.1:14551,udpout:127.0.0.1:14552",
+    )
+    fl.add_argument(
+        "--speed", type=float, default=1.0, help="with --to: 1 real time, 0 as fast as possible"
+    )
+    fl.add_argument(
+        "--drop", type=_drop, default=None, help="SYSID@T: that vehicle is lost from T seconds"
+    )
+    fl.add_argument(
+        "--clock-offset",
+        type=_clock_offset,
+        action="append",
+        help="SYSID=SECONDS: that vehicle's SYSTEM_TIME Unix time is off (repeatable)",
+    )
+    fl.set_defaults(func=cmd_fleet)
     inj = sub.add_parser(
         "inject",
         help="add a synthetic bearing stream toward a fixed local NED point to a real tlog",

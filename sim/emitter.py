@@ -121,6 +121,10 @@ class EmitterConfig:
     bearing a DISTANCE_SENSOR (orientation MAV_SENSOR_ROTATION_CUSTOM, from the gimbal's
     component 154, centimetres) of the true range plus Gaussian noise of this standard
     deviation (m); ``None``: none.
+    ``origin_geodetic``: the EKF origin (latitude deg, longitude deg, altitude m AMSL) the
+    local position is placed from in GLOBAL_POSITION_INT (a fleet gives each vehicle its own).
+    ``system_time_offset_s``: added to SYSTEM_TIME's Unix time only (a vehicle whose GPS clock
+    is off); the tlog stamps and every other clock stay true.
     """
 
     bearing: str = "gimbal"
@@ -146,6 +150,8 @@ class EmitterConfig:
     landing_target_unix_time: bool = False
     rangefinder_noise_m: float | None = None
     seed: int = 0
+    origin_geodetic: tuple[float, float, float] = (ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M)
+    system_time_offset_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.bearing not in BEARINGS:
@@ -252,7 +258,8 @@ class Emitter:
                 t + 0.0005,
                 self._pack(
                     mavlink.MAVLink_system_time_message(
-                        round(self.unix_s(t) * 1e6), self.boot_ms(t)
+                        round((self.unix_s(t) + self.config.system_time_offset_s) * 1e6),
+                        self.boot_ms(t),
                     )
                 ),
             )
@@ -306,9 +313,7 @@ class Emitter:
                     )
                 ),
             )
-            lat, lon, alt = ardupilot_offset(
-                ORIGIN_LAT_DEG, ORIGIN_LON_DEG, ORIGIN_ALT_M, p[0], p[1], p[2]
-            )
+            lat, lon, alt = ardupilot_offset(*cfg.origin_geodetic, p[0], p[1], p[2])
             yield Emission(
                 t + 0.0001,
                 self._pack(

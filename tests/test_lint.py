@@ -25,7 +25,7 @@ def test_ruff_is_clean() -> None:
 #: into samples (pymavlink's message objects, no I/O), and the edges that do I/O (sockets,
 #: files, Zenoh, the clock, the command line). A new folder must be given a role here.
 ROLES = {
-    "core": "maths", "core/kernels": "maths", "geo": "maths",
+    "core": "maths", "core/kernels": "maths", "geo": "maths", "fleet": "maths",
     "tracking": "messages",
     "mavlink": "edges", "logs": "edges", "outputs": "edges", "app": "edges",
 }  # fmt: skip

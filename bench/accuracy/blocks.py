@@ -18,6 +18,7 @@ ORDER = (
     "robustness",
     "formats",
     "range",
+    "fleet",
 )
 
 

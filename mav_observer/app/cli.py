@@ -13,6 +13,10 @@ Sub-commands:
   imports it).
 * ``replay SOURCE``: replay a flight log (or read a live connection) into estimates, files, a
   summary, a plot and maps (``docs/cli.md``; :mod:`mav_observer.app.replay_cmd`).
+* ``fuse``: one target seen by several vehicles, from their rays over Zenoh or from ray
+  files (:mod:`mav_observer.app.fuse_cmd`, ``docs/fleet.md``).
+* ``router``: Zenoh's router joining the processes of several machines
+  (:mod:`mav_observer.app.router_cmd`).
 * ``version``: print the version.
 """
 
@@ -99,6 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="publish what the service would have, each bearing's estimate at its arrival "
         "(the default: once the velocity after it is known, interpolated; docs/cli.md)",
     )
+    rp.add_argument(
+        "--rays",
+        type=Path,
+        help="every bearing used as a geodetic ray, JSON Lines (docs/fleet.md): what "
+        "`mav-observer fuse --rays` fuses across vehicles after the flight",
+    )
     rp.add_argument("--summary-json", type=Path, help="write the summary as JSON")
     rp.add_argument(
         "--config",
@@ -114,6 +124,10 @@ def build_parser() -> argparse.ArgumentParser:
     from mav_observer.app import map_cmd
 
     map_cmd.add_parser(sub)
+    from mav_observer.app import fuse_cmd, router_cmd
+
+    fuse_cmd.add_parser(sub)
+    router_cmd.add_parser(sub)
     sub.add_parser("version", help="print the version")
     return parser
 
@@ -494,6 +508,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             from mav_observer.app.map_cmd import cmd_map
 
             return cmd_map(args)
+        if args.command == "fuse":
+            from mav_observer.app.fuse_cmd import cmd_fuse
+
+            return cmd_fuse(args)
+        if args.command == "router":
+            from mav_observer.app.router_cmd import cmd_router
+
+            return cmd_router(args)
     except ConfigError as exc:  # a setting or flag that cannot be: a usage error
         print(f"mav-observer: {exc}", file=sys.stderr)
         return 2

@@ -26,6 +26,7 @@ from mav_observer.core.config import BEARING_NOISE_PRIOR_DEG
 from mav_observer.errors import MavObserverError
 from mav_observer.logs.formats import LogFormatError, LogReader, open_log
 from mav_observer.logs.rawlink import RawLinkReader
+from mav_observer.mavlink.dialect import MSG_ID
 from mav_observer.mavlink.sources import is_file_source
 from mav_observer.mavlink.tlog import TlogReader
 from mav_observer.outputs.records import CSV_COLUMNS, EstimateRecord
@@ -77,7 +78,7 @@ def _messages(
 ) -> tuple[Iterator[tuple[float, Any]], Any]:
     if is_file_source(source):
         try:
-            reader: Any = open_log(source, tracker.config.wanted_message_ids())
+            reader: Any = open_log(source, _wanted(tracker))
         except (LogFormatError, OSError) as exc:
             raise ReplayError(f"{source}: {exc}", exit_code=3) from exc
         return iter(reader), reader
@@ -93,6 +94,12 @@ def _messages(
         signing_link_id=link.signing_link_id,
     )
     return iter(reader), reader
+
+
+def _wanted(tracker: Tracker) -> frozenset[int]:
+    """The message ids to decode; with rays, SYSTEM_TIME too (their Unix time)."""
+    ids = tracker.config.wanted_message_ids()
+    return ids if tracker.rays is None else ids | {MSG_ID["SYSTEM_TIME"]}
 
 
 def _progress(enabled: bool, total: int | None) -> Any:
@@ -121,6 +128,7 @@ def replay(
     keep_map: bool = False,
     keep_report: bool = False,
     live: bool = False,
+    rays_jsonl: Path | None = None,
 ) -> ReplaySummary:
     """Run a replay; raises :class:`ReplayError` (with an exit code) when it cannot, or when
     the source has no usable velocity or bearing stream. ``link``: how a live source is read
@@ -131,10 +139,13 @@ def replay(
     summary's ``map_tracks`` for ``--geojson`` and ``--kml`` (:mod:`mav_observer.outputs.maps`).
     ``live``: each bearing's estimate at its arrival, as the service publishes it; by default
     (``TrackerConfig.publish = "auto"``) once the velocity after it is known
-    (``docs/cli.md``)."""
+    (``docs/cli.md``). ``rays_jsonl``: every bearing used, as a geodetic ray
+    (``docs/fleet.md``), one per line: what ``mav-observer fuse --rays`` fuses."""
     tc = tracker_config if tracker_config is not None else TrackerConfig()
     publish = "live" if live else "committed" if tc.publish == "auto" else tc.publish
     tracker = Tracker(replace(tc, publish=publish))
+    if rays_jsonl is not None:
+        tracker.rays = []
     smooth = smooth or smooth_jsonl is not None
     if smooth:
         from mav_observer.core import smoother
@@ -162,7 +173,10 @@ def replay(
         with ExitStack() as stack:
             jsonl: TextIO | None = None
             writer: Any = None
+            rays_fh: TextIO | None = None
             try:
+                if rays_jsonl is not None:
+                    rays_fh = stack.enter_context(open(rays_jsonl, "w", encoding="utf-8"))
                 if output_jsonl is not None:
                     jsonl = stack.enter_context(open(output_jsonl, "w", encoding="utf-8"))
                 if output_csv is not None:
@@ -205,6 +219,9 @@ def replay(
                         bar.update(reader.position - bar.n)
                 if records:
                     sink(records)
+                if rays_fh is not None and tracker.rays:
+                    rays_fh.writelines(r.to_json() + "\n" for r in tracker.rays)
+                    tracker.rays.clear()
             sink(tracker.flush())  # bearings still waiting for an attitude at the end
     except OSError as exc:  # a full disk, a file system gone read-only, while writing
         raise ReplayError(f"cannot write output: {exc}") from exc

@@ -77,6 +77,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         keep_map=bool(args.geojson or args.kml or args.plot or args.html),
         keep_report=args.html is not None,
         live=args.live,
+        rays_jsonl=args.rays,
     )
     map_status = _write_maps(args, summary, Path(source).name)
     errors = None

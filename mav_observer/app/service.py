@@ -109,6 +109,8 @@ class Service:
         self.tick_s = tick_s
         self.tracker = Tracker(settings.tracker_config())
         z = settings["zenoh"]
+        if z["rays"]:
+            self.tracker.rays = []
         rate = float(z["estimate_max_rate_hz"])
         self.min_interval_s = 0.0 if rate <= 0.0 else 1.0 / rate
         self.status_period_s = float(z["status_period_s"])
@@ -240,6 +242,18 @@ class Service:
         view.last_mono = now
         for rec in records:
             self._on_estimate(view, rec, now)
+        if self.tracker.rays:
+            self._publish_rays()
+
+    def _publish_rays(self) -> None:
+        rays = self.tracker.rays
+        assert rays is not None
+        sent = self.clock()
+        for r in rays:
+            d = r.to_dict()
+            d["sent_unix_s"] = sent
+            self.pub.ray(r.sysid, r.target, json.dumps(d, separators=(",", ":")))
+        rays.clear()
 
     def _new_vehicle(self, sysid: int, now: float) -> _VehicleView:
         view = self.vehicles[sysid] = _VehicleView(sysid, now, status_mono=now)
@@ -294,6 +308,8 @@ class Service:
             view = self.vehicles.get(rec.sysid)
             if view is not None:
                 self._on_estimate(view, rec, now)
+        if self.tracker.rays:
+            self._publish_rays()
         if (
             self._link_state == UP
             and self._last_any_mono is not None

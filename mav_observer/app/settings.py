@@ -301,6 +301,11 @@ SCHEMA: dict[str, dict[str, tuple[Any, Callable[[object], Any], str]]] = {
             "most estimates per second per target (0: every bearing update)",
         ),
         "status_period_s": (1.0, checks.number(0.05), "status publication period (s)"),
+        "rays": (
+            True,
+            checks.boolean,
+            "also publish each bearing used as a geodetic ray, for `mav-observer fuse`",
+        ),
         "congestion_control": (
             "drop",
             checks.choice("drop", "block"),

@@ -10,6 +10,8 @@ Publications (:class:`Publications`), under a prefix (default ``mav_observer``),
 ``docs/schema.md``:
 
 * ``{prefix}/{sysid}/{target}/estimate``: estimate records (JSON);
+* ``{prefix}/{sysid}/{target}/ray``: each bearing used, as a geodetic ray (JSON,
+  ``docs/fleet.md``);
 * ``{prefix}/{sysid}/status``: the vehicle's status (JSON);
 * ``{prefix}/{sysid}/alive``: a liveliness token while the service runs;
 * a queryable on ``{prefix}/{sysid}/**`` answering with the latest estimate(s) and status.
@@ -142,6 +144,9 @@ class Publications:
     def status_key(self, sysid: int) -> str:
         return f"{self.prefix}/{sysid}/status"
 
+    def ray_key(self, sysid: int, target: str) -> str:
+        return f"{self.prefix}/{sysid}/{target}/ray"
+
     def alive_key(self, sysid: int) -> str:
         return f"{self.prefix}/{sysid}/alive"
 
@@ -154,15 +159,20 @@ class Publications:
         queryable = self.session.declare_queryable(f"{self.prefix}/{sysid}/**", self._on_query)
         self._vehicles[sysid] = (token, queryable)
 
-    def _put(self, key: str, payload: str) -> None:
+    def _put(self, key: str, payload: str, *, keep: bool = True) -> None:
         pub = self._publishers.get(key)
         if pub is None:
             pub = self._publishers[key] = self.session.declare_publisher(
                 key, encoding=JSON, congestion_control=self._cc
             )
-        with self._lock:
-            self._latest[key] = payload
+        if keep:
+            with self._lock:
+                self._latest[key] = payload
         pub.put(payload)
+
+    def ray(self, sysid: int, target: str, payload: str) -> None:
+        """A bearing as a geodetic ray (not kept for queries: a stream, not a state)."""
+        self._put(self.ray_key(sysid, target), payload, keep=False)
 
     def estimate(self, sysid: int, target: str, payload: str) -> None:
         self._put(self.estimate_key(sysid, target), payload)

@@ -8,13 +8,10 @@ latest position and velocity and its cameras' fields of view, turns bearing mess
 :class:`~mav_observer.outputs.records.EstimateRecord` for each bearing the observers accept.
 A message that cannot be used is counted by reason and skipped; nothing already received is lost.
 
-Roles: this module routes each message to its handler and publishes the records; the
-bearing sources' readers are :mod:`~mav_observer.tracking.bearings`', the per-vehicle state
-and clocks :mod:`~mav_observer.tracking.vehicle`'s, the origin
-:mod:`~mav_observer.tracking.origin`'s, the velocity's drift and the published bias
-:mod:`~mav_observer.core.drift`'s, the observers of a vehicle's targets
-:mod:`~mav_observer.core.targets`'. Replay and the service run the same loop body,
-:meth:`Tracker.handle` (``(t, message) -> records``), and read it through its public methods.
+Roles: this module routes each message to its handler and publishes the records (bearing
+readers: ``bearings``; per-vehicle state and clocks: ``vehicle``; origin: ``origin``; rays:
+``rays``; drift and published bias: ``core.drift``; observers: ``core.targets``). Replay and
+the service run the same loop body, :meth:`Tracker.handle` (``(t, message) -> records``).
 
 Targets and the messages that feed them (``sources``):
 
@@ -54,6 +51,7 @@ from mav_observer.tracking.config import AUTO_SOURCES, PUBLISH, SOURCES, Tracker
 from mav_observer.tracking.directions import Skip
 from mav_observer.tracking.origin import pair_global_local, place_origin
 from mav_observer.tracking.persistence import SavedObservers
+from mav_observer.tracking.rays import ray_of
 from mav_observer.tracking.vehicle import (
     Vehicle,
     WaitingBearing,
@@ -63,6 +61,7 @@ from mav_observer.tracking.vehicle import (
 
 if TYPE_CHECKING:  # (the smoother's sample log is made by a replay that smooths)
     from mav_observer.core.smoother import SampleLog
+    from mav_observer.fleet.rays import Ray
 
 log = logging.getLogger(__name__)
 
@@ -85,10 +84,8 @@ class _Deferred(Exception):
 
 
 class Tracker(BearingReaders, SavedObservers):
-    """Turns ``(t_arrival_s, message)`` pairs into estimate records; see the module docstring.
-
-    ``t_arrival_s`` is the tlog timestamp on replay, the receive time live (Unix seconds).
-    """
+    """Turns ``(t_arrival_s, message)`` pairs into estimate records (module docstring);
+    ``t_arrival_s`` is the tlog timestamp on replay, the receive time live (Unix seconds)."""
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         self.config = config if config is not None else TrackerConfig()
@@ -105,8 +102,10 @@ class Tracker(BearingReaders, SavedObservers):
         self.events: Counter[str] = Counter()
         #: ``(t_boot_s, sysid, event)`` of the latest events (resets, clock changes, ...)
         self.event_log: deque[tuple[float, int, str]] = deque(maxlen=10_000)
-        #: when set (replay --smooth), every velocity and bearing used is kept there
+        #: when set, every velocity and bearing used is kept there (replay --smooth), and
+        #: every bearing used as a geodetic ray (:mod:`~mav_observer.tracking.rays`)
         self.sample_log: SampleLog | None = None
+        self.rays: list[Ray] | None = None
         self._warned: Counter[str] = Counter()  # log rate limiting
         #: saved observers waiting for their vehicle's first position (see :meth:`restore`)
         self._pending: dict[int, list[dict[str, Any]]] = {}
@@ -188,8 +187,7 @@ class Tracker(BearingReaders, SavedObservers):
         *args: Any,
     ) -> None:
         """Run a handler (or a waiting bearing's second stage) on ``veh``: a message that
-        cannot be used is counted by reason, never raised; one that waits counts nothing
-        yet."""
+        cannot be used is counted by reason, never raised; one that waits counts nothing."""
         try:
             fn(veh, *args)
         except _Deferred:
@@ -348,6 +346,8 @@ class Tracker(BearingReaders, SavedObservers):
         comp = msg.get_srcComponent()
         if comp == veh.autopilot_compid:
             self._timed(veh, comp, msg.time_boot_ms * 1e-3, t)
+            if msg.time_unix_usec > 0:  # 0: the autopilot has no GNSS time yet
+                veh.unix_minus_boot_s = msg.time_unix_usec * 1e-6 - msg.time_boot_ms * 1e-3
 
     def _on_local_position(
         self, veh: Vehicle, t: float, msg: Any, out: list[EstimateRecord]
@@ -501,6 +501,8 @@ class Tracker(BearingReaders, SavedObservers):
             )
         if self.sample_log is not None:
             self.sample_log.bearing(veh.sysid, target, tb, y)
+        if self.rays is not None and obs is not None and obs.started:
+            ray_of(self.rays, veh, target, (tb, t_arrival), y, obs.noise(), range_m, range_std)
         if new:
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)

@@ -78,6 +78,8 @@ class Vehicle:
     drift: PositionDrift = field(default_factory=PositionDrift)
     #: the local frame's origin on WGS84 (:mod:`mav_observer.geo.geodesy`), once known
     origin: Origin | None = None
+    #: SYSTEM_TIME's Unix time minus its time_boot_ms (s), when the autopilot knows the time
+    unix_minus_boot_s: float | None = None
     #: the mean over GLOBAL_POSITION_INT's pairs while they place the origin
     origin_mean: geodesy.OriginMean | None = None
     #: what placed the origin: (source, lat deg, lon deg, alt m, the point's local NED m)

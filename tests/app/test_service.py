@@ -75,6 +75,7 @@ class FakePublications:
         self.estimates: list[tuple[int, str, dict[str, Any]]] = []
         self.statuses: list[tuple[int, dict[str, Any]]] = []
         self.vehicles: list[int] = []
+        self.rays: list[tuple[int, str, dict[str, Any]]] = []
         self.closed = False
 
     def vehicle(self, sysid: int) -> None:
@@ -85,6 +86,9 @@ class FakePublications:
 
     def status(self, sysid: int, payload: str) -> None:
         self.statuses.append((sysid, json.loads(payload)))
+
+    def ray(self, sysid: int, target: str, payload: str) -> None:
+        self.rays.append((sysid, target, json.loads(payload)))
 
     def close(self) -> None:
         self.closed = True
@@ -363,3 +367,23 @@ def test_systematic_bearing_errors_are_said_once_and_counted(
             assert noise["innovation_var_ratio"] == pytest.approx(1.0, abs=0.3)
         else:
             assert noise["innovation_lag1"] > 0.5 and noise["innovation_var_ratio"] < 1e-3
+
+
+def test_each_bearing_used_is_published_as_a_geodetic_ray_on_the_autopilots_clock() -> None:
+    items, em = messages(10.0)
+    svc, pubs, _ = make_service(items, em)
+    svc.run(duration_s=11.0)
+    assert len(pubs.rays) > 80  # 10 Hz bearings, from the first velocity on
+    sysid, target, ray = pubs.rays[-1]
+    assert (sysid, target, ray["sysid"], ray["target"]) == (1, "gimbal", 1, "gimbal")
+    assert ray["clock"] == "autopilot"  # SYSTEM_TIME carries the Unix time
+    assert abs(ray["t_unix_s"] - em.unix_s(ray["t_boot_s"] - em.config.boot_at_start_s)) < 1e-3
+    assert abs(ray["lat_deg"] + 35.36) < 0.01 and ray["sent_unix_s"] is not None
+    assert abs(math.hypot(*ray["los_ned"]) - 1.0) < 1e-9
+
+
+def test_rays_can_be_turned_off() -> None:
+    items, em = messages(5.0)
+    svc, pubs, _ = make_service(items, em, {"zenoh": {"rays": False}})
+    svc.run(duration_s=6.0)
+    assert pubs.rays == [] and svc.vehicles[1].targets["gimbal"].estimates > 30

@@ -1,0 +1,1 @@
+"""Several vehicles, one target: rays shared over Zenoh and their fusion (docs/fleet.md)."""
