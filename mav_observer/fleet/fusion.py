@@ -404,43 +404,23 @@ class FusedTarget:
                 }
             )
         total = self._n + self._folded
+        pos = cov_rows = geo = rng = None
         if self._p is None or self._cov is None:
             status = "waiting" if total < 2 else "unobservable"
-            return FusedEstimate(
-                self.name,
-                status,
-                total,
-                self._t_unix,
-                anchor,
-                None,
-                None,
-                None,
-                None,
-                tuple(vehicles),
-                self.outliers,
-            )
-        p, cov = self._p, self._cov
-        ranges = np.linalg.norm(p - self._q[: self._n], axis=1) if self._n else np.array([math.nan])
-        rng = float(np.mean(ranges[-50:]))
-        big = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
-        status = "converged" if big <= self.converged_rel * rng else "converging"
-        if big > rng:
-            status = "unobservable"
-        ecef = self._ecef0 + self._r0t.T @ p
-        lat, lon, alt = pymap3d.ecef2geodetic(float(ecef[0]), float(ecef[1]), float(ecef[2]))
-        return FusedEstimate(
-            self.name,
-            status,
-            total,
-            self._t_unix,
-            anchor,
-            (float(p[0]), float(p[1]), float(p[2])),
-            tuple(tuple(float(c) for c in row) for row in cov),
-            (float(lat), float(lon), float(alt)),
-            rng,
-            tuple(vehicles),
-            self.outliers,
-        )
+        else:
+            p, cov = self._p, self._cov
+            rng = float(np.mean(np.linalg.norm(p - self._q[: self._n], axis=1)[-50:]))
+            big = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+            status = "converged" if big <= self.converged_rel * rng else "converging"
+            if big > rng:
+                status = "unobservable"
+            ecef = self._ecef0 + self._r0t.T @ p
+            lat, lon, alt = pymap3d.ecef2geodetic(float(ecef[0]), float(ecef[1]), float(ecef[2]))
+            pos = (float(p[0]), float(p[1]), float(p[2]))
+            cov_rows = tuple(tuple(float(c) for c in row) for row in cov)
+            geo = (float(lat), float(lon), float(alt))
+        return FusedEstimate(self.name, status, total, self._t_unix, anchor, pos, cov_rows, geo,
+                             rng, tuple(vehicles), self.outliers)  # fmt: skip
 
     def to_anchor_ned(self, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
         """A geodetic point in this target's anchor frame (for scoring against a truth)."""
