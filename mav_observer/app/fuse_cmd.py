@@ -204,10 +204,13 @@ class _FollowTargetOut:
     """The fused targets as FOLLOW_TARGET (lat, lon, alt, position variance) to autopilots."""
 
     def __init__(self, urls: list[str], sysid: int, rate_hz: float) -> None:
-        from mav_observer.mavlink.connection import ConnectionReader
+        from mav_observer.mavlink.dialect import connect
 
-        self.links = [ConnectionReader(u, heartbeat_period_s=None) for u in urls]
-        self.sysid = sysid
+        if not 1 <= sysid <= 255:
+            raise ConfigError(f"--mavlink-sysid {sysid} is not in [1, 255]")
+        # links of our own system id: an autopilot's follow mode listens to one sysid
+        self.links = [connect(u, source_system=sysid) for u in urls]
+        self.errors = 0
         self.min_s = 1.0 / rate_hz
         self.next: dict[str, float] = {}
         self.t0 = time.monotonic()
@@ -221,7 +224,7 @@ class _FollowTargetOut:
         lat, lon, alt = est.geodetic
         c = est.cov_ned_m2
         msg = mavlink.MAVLink_follow_target_message(
-            int((now - self.t0) * 1000),
+            int(max(0.0, now - self.t0) * 1000),  # ms since this node started (uint64)
             FOLLOW_TARGET_POS,
             round(lat * 1e7),
             round(lon * 1e7),
@@ -234,7 +237,12 @@ class _FollowTargetOut:
             0,
         )
         for link in self.links:
-            link.send(msg)
+            try:
+                link.mav.send(msg)
+            except OSError as exc:  # a link down: counted and logged, never fatal
+                self.errors += 1
+                if self.errors <= 5:
+                    log.warning("FOLLOW_TARGET not sent: %s", exc)
 
     def close(self) -> None:
         for link in self.links:

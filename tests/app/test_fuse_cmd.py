@@ -67,3 +67,31 @@ def test_a_live_fleet_through_a_router_fuses_within_milliseconds() -> None:
     assert r["latency_ms_p50"] < 100.0  # 2-3 ms on an idle machine (docs/performance.md)
     for err, sd in zip(r["last_error_ned_m"], last["pos_std_ned_m"], strict=True):
         assert abs(err) < 5 * sd
+
+
+def test_a_fused_target_goes_to_the_autopilots_as_follow_target() -> None:
+    import socket
+
+    from mav_observer.app.fuse_cmd import _FollowTargetOut
+    from mav_observer.fleet.fusion import FusedEstimate
+    from mav_observer.mavlink.dialect import connect
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    rx = connect(f"udpin:127.0.0.1:{port}")
+    out = _FollowTargetOut([f"udpout:127.0.0.1:{port}"], 250, 4.0)
+    est = FusedEstimate("p", "converged", 40, 0.0, (-35.0, 149.0, 580.0), (1.0, 2.0, 3.0),
+                        ((0.04, 0, 0), (0, 0.09, 0), (0, 0, 0.01)), (-35.36, 149.16, 584.5),
+                        54.0, ())  # fmt: skip
+    try:
+        out.send(est, 100.0)
+        out.send(est, 100.1)  # within 1/4 s: not sent again
+        msg = rx.recv_match(type="FOLLOW_TARGET", blocking=True, timeout=5)
+        assert msg is not None and msg.get_srcSystem() == 250
+        assert (msg.lat, msg.lon, msg.alt) == (-353600000, 1491600000, pytest.approx(584.5))
+        assert list(msg.position_cov) == pytest.approx([0.04, 0.09, 0.01])
+        assert rx.recv_match(type="FOLLOW_TARGET", blocking=True, timeout=0.3) is None
+    finally:
+        out.close()
+        rx.close()
