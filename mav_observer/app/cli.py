@@ -23,6 +23,7 @@ Sub-commands:
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import logging
 import os
@@ -33,6 +34,9 @@ from typing import Any
 
 from mav_observer import __version__
 from mav_observer.errors import ConfigError, MavObserverError
+
+#: The commands whose module ``mav_observer.app.{name}_cmd`` holds ``cmd_{name}``.
+LAZY_COMMANDS = ("replay", "map", "fuse", "router")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -496,26 +500,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mav-observer {__version__}")
         return 0
     try:
-        if args.command == "replay":
-            from mav_observer.app.replay_cmd import cmd_replay
-
-            return cmd_replay(args)
         if args.command == "run":
             return cmd_run(args)
         if args.command == "listen":
             return cmd_listen(args)
-        if args.command == "map":
-            from mav_observer.app.map_cmd import cmd_map
-
-            return cmd_map(args)
-        if args.command == "fuse":
-            from mav_observer.app.fuse_cmd import cmd_fuse
-
-            return cmd_fuse(args)
-        if args.command == "router":
-            from mav_observer.app.router_cmd import cmd_router
-
-            return cmd_router(args)
+        if args.command in LAZY_COMMANDS:  # imported when used: each start stays light
+            module = importlib.import_module(f"mav_observer.app.{args.command}_cmd")
+            return int(getattr(module, f"cmd_{args.command}")(args))
     except ConfigError as exc:  # a setting or flag that cannot be: a usage error
         print(f"mav-observer: {exc}", file=sys.stderr)
         return 2

@@ -11,7 +11,6 @@ one target comes from ``--target NAME=SYSID/TARGET,...`` or a TOML file's ``[tar
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import logging
 import signal
@@ -109,14 +108,18 @@ class Fusion:
                 self.routes.setdefault(k, []).append(ft)
         self.counts: Counter[str] = Counter()
 
-    def add(self, payload: str | bytes | Ray, rx_s: float) -> list[FusedTarget]:
+    def parse(self, payload: str | bytes, where: str = "") -> Ray | None:
+        """The ray of a payload, or ``None`` for a bad one (counted; the first few logged)."""
         try:
-            ray = payload if isinstance(payload, Ray) else ray_from_json(payload)
+            return ray_from_json(payload)
         except InvalidRayError as exc:
             self.counts["bad_ray"] += 1
             if self.counts["bad_ray"] <= 5:
-                log.warning("ray refused: %s", exc)
-            return []
+                log.warning("%sray refused: %s", where, exc)
+            return None
+
+    def add(self, ray: Ray, rx_s: float) -> list[FusedTarget]:
+        """Fuse ``ray`` into the targets it belongs to; returns them."""
         routes = self.routes.get(ray.key)
         if not routes:
             self.counts["ray_not_fused"] += 1
@@ -167,12 +170,9 @@ def _offline(fusion: Fusion, args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"--rays {path}: {exc}") from None
         for line in lines:
-            if line.strip():
-                try:
-                    rays.append(ray_from_json(line))
-                except InvalidRayError as exc:
-                    fusion.counts["bad_ray"] += 1
-                    log.warning("%s: ray refused: %s", path, exc)
+            ray = fusion.parse(line, f"{path}: ") if line.strip() else None
+            if ray is not None:
+                rays.append(ray)
     rays.sort(key=lambda r: r.t_unix_s)
     out = open(args.output, "w", encoding="utf-8") if args.output else None  # noqa: SIM115
     try:
@@ -215,10 +215,14 @@ class _FollowTargetOut:
         self.next: dict[str, float] = {}
         self.t0 = time.monotonic()
 
+    def due(self, name: str, now: float) -> bool:
+        """Whether target ``name`` may be sent at ``now`` (its rate limit)."""
+        return now >= self.next.get(name, 0.0)
+
     def send(self, est: FusedEstimate, now: float) -> None:
         from mav_observer.mavlink.dialect import mavlink
 
-        if est.geodetic is None or est.cov_ned_m2 is None or now < self.next.get(est.name, 0.0):
+        if est.geodetic is None or est.cov_ned_m2 is None or not self.due(est.name, now):
             return
         self.next[est.name] = now + self.min_s
         lat, lon, alt = est.geodetic
@@ -288,20 +292,25 @@ def _live(fusion: Fusion, args: argparse.Namespace, opts: dict[str, float]) -> i
                 rx, payload = inbox.get(timeout=0.2)
             except queue.Empty:
                 continue
-            latest_sent = None
-            with contextlib.suppress(ValueError, AttributeError):
-                latest_sent = json.loads(payload).get("sent_unix_s")
-            for ft in fusion.add(payload, rx):
+            ray = fusion.parse(payload)
+            if ray is None:
+                continue
+            for ft in fusion.add(ray, rx):
                 now = time.monotonic()
+                publish = now >= next_pub.get(ft.name, 0.0)
+                send = mav is not None and mav.due(ft.name, now)
+                if not (publish or send):
+                    continue  # rate-limited: the estimate is not even formed
                 est = ft.estimate(now)
-                if now >= next_pub.get(ft.name, 0.0):
+                if publish:
                     next_pub[ft.name] = now + min_s
-                    text = _line(est, {"ray_sent_unix_s": latest_sent, "fused_unix_s": time.time()})
+                    extra = {"ray_sent_unix_s": ray.sent_unix_s, "fused_unix_s": time.time()}
+                    text = _line(est, extra)
                     pubs[ft.name].put(text)
                     if out is not None:
                         out.write(text + "\n")
-                if mav is not None and est.status in ("converging", "converged"):
-                    mav.send(est, now)
+                if send and est.status in ("converging", "converged"):
+                    mav.send(est, now)  # type: ignore[union-attr]
         sub.undeclare()
     finally:
         for p in pubs.values():

@@ -180,9 +180,7 @@ class BiasObserver:
     def covariance(self) -> np.ndarray | None:
         """Covariance of ``[xhat, ahat]`` at the committed time ((2n, 2n), m and m/s), for an
         estimator that has one (``None`` for the paper's observer)."""
-        if not self._output():
-            return None
-        return self._p_out.copy()
+        return self._p_out.copy() if self._output() else None
 
     def predicted_displacement_m(self, t0_s: float, t1_s: float) -> list[float] | None:
         """The integral of ``v`` (the paper's, ``-u``) from ``t0_s`` to ``t1_s`` (m) as the
@@ -206,8 +204,7 @@ class BiasObserver:
     @property
     def settled(self) -> bool:
         """True once what the estimator learns no longer moves its estimate for long (the
-        bearings' latency, when learnt, has settled once); until then no estimate is called
-        ``converged``."""
+        learnt bearings' latency has settled once); no estimate is ``converged`` before."""
         s, cfg = self._st.s, self._st.cfg
         if cfg[L.O_KIND] != L.KIND_BANK or not math.isnan(cfg[L.O_LATENCY_S]):
             return True
@@ -217,7 +214,7 @@ class BiasObserver:
     def latency_learning_since_s(self) -> float | None:
         """When (s) the bearings' latency began to be learnt (``None``: not yet, or told)."""
         t = float(self._st.s[L.OFF_LAT + L.L_T0])
-        return None if math.isnan(t) else t
+        return None if isnan(t) else t
 
     @property
     def hypotheses(self) -> int:
@@ -243,39 +240,43 @@ class BiasObserver:
     def reacquisitions(self) -> int:
         """Times the filter bank started again from its Riccati observer because its
         bearings stopped agreeing with it (0 for the paper's observer)."""
-        if self._st.cfg[L.O_KIND] != L.KIND_BANK:
-            return 0
-        return int(self._st.s[L.OFF_BS + L.B_RESEEDS])
+        bank = self._st.cfg[L.O_KIND] == L.KIND_BANK
+        return int(self._st.s[L.OFF_BS + L.B_RESEEDS]) if bank else 0
+
+    def bearing_noise_var(self) -> float | None:
+        """The bearing noise variance in use (rad^2 per tangent axis, learnt or told) alone,
+        cheap enough for every bearing; ``None`` for the paper's observer."""
+        cfg, s = self._st.cfg, self._st.s
+        if cfg[L.O_KIND] != L.KIND_BANK:
+            return None
+        bp = cfg[L.O_BANK :]
+        if not bp[L.P_LEARN_NOISE] or not s[L.S_STARTED]:
+            return float(bp[L.P_SIGMA_RAD]) ** 2
+        v = float(s[L.OFF_BS + L.B_NOISE_BETA] / s[L.OFF_BS + L.B_NOISE_ALPHA])
+        return min(max(v, float(bp[L.P_NOISE_MIN_RAD]) ** 2), float(bp[L.P_NOISE_MAX_RAD]) ** 2)
 
     def noise(self) -> NoiseLevels | None:
         """The noise levels in use (learnt or told) and the robust update's counts, for the
         filter bank; ``None`` for the paper's observer."""
         cfg, s = self._st.cfg, self._st.s
-        if cfg[L.O_KIND] != L.KIND_BANK:
+        var = self.bearing_noise_var()
+        if var is None:
             return None
         bp = cfg[L.O_BANK :]
         bs = s[L.OFF_BS : L.OFF_BS + L.B_COUNT]
-        learn_noise = bool(bp[L.P_LEARN_NOISE])
-        if not learn_noise or not s[L.S_STARTED]:
-            var = float(bp[L.P_SIGMA_RAD]) ** 2
-        else:
-            v = float(bs[L.B_NOISE_BETA] / bs[L.B_NOISE_ALPHA])
-            var = min(max(v, float(bp[L.P_NOISE_MIN_RAD]) ** 2), float(bp[L.P_NOISE_MAX_RAD]) ** 2)
-        told_v = float(cfg[L.O_VELOCITY_NOISE_MPS])
+        vel = told_v = float(cfg[L.O_VELOCITY_NOISE_MPS])
         if math.isnan(told_v):
             vn = s[L.OFF_VN : L.OFF_VN + L.V_COUNT]
             w = vn[L.V_W] + vn[L.V_WP]
             prior = float(cfg[L.O_VELOCITY_NOISE_PRIOR_MPS])
             vel = math.sqrt((vn[L.V_S] + vn[L.V_SP]) / w) if w > 0.0 else prior
-        else:
-            vel = told_v
         told_l = float(cfg[L.O_LATENCY_S])
         tau = float(s[L.OFF_LAT + L.L_TAU]) if math.isnan(told_l) else told_l
         learn_walk = bool(bp[L.P_LEARN_WALK])
         q_a = float(bs[L.B_WALK_Q]) if learn_walk else float(bp[L.P_Q_A])
         return NoiseLevels(
             bearing_noise_deg=math.degrees(math.sqrt(var)),
-            bearing_noise_learnt=learn_noise,
+            bearing_noise_learnt=bool(bp[L.P_LEARN_NOISE]),
             velocity_noise_mps=float(vel),
             velocity_noise_learnt=math.isnan(told_v),
             bearings=int(bs[L.B_BEARINGS]),

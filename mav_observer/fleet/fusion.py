@@ -91,14 +91,13 @@ class VehicleTrack:
     _prev: tuple[float, np.ndarray] | None = None
     _integral: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _sums: np.ndarray = field(default_factory=lambda: np.zeros((5, 3)))
-    _n: int = 0
 
     def add_motion(self, t_boot_s: float, q: np.ndarray, v: np.ndarray | None) -> None:
         if v is None:
             return
         if self._prev is not None and t_boot_s <= self._prev[0]:
             if t_boot_s < self._prev[0]:  # a reboot: its clock starts again
-                self._t0, self._prev, self._n = None, None, 0
+                self._t0, self._prev = None, None
                 self._integral[:] = 0.0
                 self._sums[:] = 0.0
             else:
@@ -117,13 +116,12 @@ class VehicleTrack:
         s[2] += t * t
         s[3] += r
         s[4] += t * r
-        self._n += 1
 
     def velocity_bias(self) -> tuple[list[float], float] | None:
         """The velocity bias (true minus measured, m/s, NED) and the time span (s) it is
         measured over, or ``None`` before 10 rays with a velocity over 1 s."""
         n, st, stt = self._sums[0, 0], self._sums[1, 0], self._sums[2, 0]
-        if self._n < 10:
+        if n < 10:
             return None
         var_t = stt / n - (st / n) ** 2
         if var_t <= 1.0 / 12.0:  # under a 1 s span

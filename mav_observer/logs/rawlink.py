@@ -10,7 +10,6 @@ than :data:`REBOOT_BACK_S`), so that the tracker sees the reboot as on a live li
 
 from __future__ import annotations
 
-import mmap
 import os
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -20,6 +19,7 @@ from typing import Any
 from mav_observer.logs.formats import LogStats
 from mav_observer.mavlink import dialect
 from mav_observer.mavlink.fastdecode import DecodeError, FastDecoder
+from mav_observer.mavlink.tlog import mapped
 
 try:
     from fastcrc.crc16 import mcrf4xx as _crc16
@@ -78,13 +78,7 @@ class RawLinkReader:
         return msgid, flen
 
     def __iter__(self) -> Iterator[tuple[float, Any]]:
-        st = self.stats
-        size = self.path.stat().st_size
-        st.bytes_total = size
-        if size == 0:
-            return
-        with open(self.path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-            yield from self._frames(buf, size)
+        return mapped(self.path, self.stats, self._frames)
 
     def _frames(self, buf: Any, n: int) -> Iterator[tuple[float, Any]]:
         st = self.stats

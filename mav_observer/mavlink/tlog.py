@@ -24,7 +24,7 @@ from __future__ import annotations
 import mmap
 import os
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from struct import unpack_from
@@ -40,6 +40,20 @@ MAGIC_V2 = 0xFD
 TS_MIN_US = 946_684_800_000_000  # 2000-01-01
 TS_MAX_US = 4_102_444_800_000_000  # 2100-01-01
 TS_JUMP_MAX_US = 7 * 86400 * 1_000_000
+
+
+def mapped(
+    path: Path, stats: Any, scan: Callable[[Any, int], Iterator[tuple[float, Any]]]
+) -> Iterator[tuple[float, Any]]:
+    """``scan(buffer, size)`` over the file mapped read-only (nothing for an empty file), the
+    file's size in ``stats.bytes_total``: the readers of MAVLink byte streams
+    (:class:`TlogReader`, :class:`~mav_observer.logs.rawlink.RawLinkReader`)."""
+    size = path.stat().st_size
+    stats.bytes_total = size
+    if size == 0:
+        return
+    with open(path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        yield from scan(buf, size)
 
 
 @dataclass
@@ -155,13 +169,7 @@ class TlogReader:
         return hdr is None or i + 8 + hdr[2] > n
 
     def __iter__(self) -> Iterator[tuple[float, Any]]:
-        st = self.stats
-        size = self.path.stat().st_size
-        st.bytes_total = size
-        if size == 0:
-            return
-        with open(self.path, "rb") as fh, mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-            yield from self._records(buf, size)
+        return mapped(self.path, self.stats, self._records)
 
     def _records(self, buf: Any, n: int) -> Iterator[tuple[float, Any]]:
         st = self.stats

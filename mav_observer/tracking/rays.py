@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 
-from mav_observer.core.samples import NoiseLevels
 from mav_observer.fleet.rays import Ray
 from mav_observer.geo.geodesy import to_geodetic
 from mav_observer.tracking.bearings import POSITION_MAX_AGE_S
@@ -43,15 +42,15 @@ def ray_of(
     target: str,
     times: tuple[float, float],
     los_ned: list[float],
-    noise: NoiseLevels | None,
+    noise_var: float | None,
     range_m: float | None = None,
     range_std_m: float | None = None,
 ) -> None:
     """Append to ``out`` the ray of a bearing the tracker used at ``times`` (``t_boot_s``,
-    ``t_arrival_s``) with its estimator's ``noise``; nothing without an origin or a recent
-    position (a ray must say where the vehicle was on the earth)."""
+    ``t_arrival_s``) with its estimator's bearing noise variance (rad^2); nothing without an
+    origin or a recent position (a ray must say where the vehicle was on the earth)."""
     t_boot_s, t_arrival_s = times
-    sigma_rad = math.nan if noise is None else math.radians(noise.bearing_noise_deg)
+    sigma_rad = math.nan if noise_var is None else math.sqrt(noise_var)
     if veh.origin is None or not (0.0 < sigma_rad < 1.0):
         return
     pos = _position_at(veh, t_boot_s)

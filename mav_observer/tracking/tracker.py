@@ -502,7 +502,8 @@ class Tracker(BearingReaders, SavedObservers):
         if self.sample_log is not None:
             self.sample_log.bearing(veh.sysid, target, tb, y)
         if self.rays is not None and obs is not None and obs.started:
-            ray_of(self.rays, veh, target, (tb, t_arrival), y, obs.noise(), range_m, range_std)
+            ray_of(self.rays, veh, target, (tb, t_arrival), y, obs.bearing_noise_var(), range_m,
+                   range_std)  # fmt: skip
         if new:
             self.events["targets"] += 1
             log.info("vehicle %d: bearing source found: %s -> target %r", veh.sysid, source, target)

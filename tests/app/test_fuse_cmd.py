@@ -27,7 +27,7 @@ def test_shared_targets_come_from_flags_and_a_table_and_bad_ones_are_named() -> 
 
 def test_a_bad_ray_is_counted_not_fatal() -> None:
     f = Fusion({"p": ["1/gimbal"]})
-    assert f.add(b"{not json", 0.0) == [] and f.add('{"sysid": 1}', 0.0) == []
+    assert f.parse(b"{not json") is None and f.parse('{"sysid": 1}') is None
     assert f.counts["bad_ray"] == 2
 
 

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-from typing import Any
+import math
 
 from mav_observer.fleet.rays import Ray
 from mav_observer.geo.geodesy import Origin, to_geodetic
 from mav_observer.tracking.rays import ray_of
 from mav_observer.tracking.vehicle import Vehicle
 
-NOISE: Any = SimpleNamespace(bearing_noise_deg=0.5)
+NOISE = math.radians(0.5) ** 2  # the estimator's bearing noise variance (rad^2)
 ORIGIN = Origin(-35.36, 149.16, 584.0, "GPS_GLOBAL_ORIGIN", "ardupilot")
 
 
