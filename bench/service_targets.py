@@ -1,6 +1,7 @@
 """Many targets on one service: LANDING_TARGET with ``target_num`` 0..N-1, each at 30 Hz.
 
-Run: ``python bench/service_targets.py`` (about a minute; ``--targets 100 --duration-s 20``).
+Run: ``python bench/service_targets.py`` (about a minute; ``--targets 100 --duration-s 20``;
+``--vehicles 10``: ten vehicles of 10 targets each, every vehicle's whole stream).
 
 The emitter flies its weaving scenario with a downward camera reporting LANDING_TARGET in
 the local frame (``landing_target_local``) at ``--bearing-hz``, LOCAL_POSITION_NED at 50 Hz
@@ -40,9 +41,10 @@ from sim.live import stop_process  # noqa: E402
 
 
 def plan(
-    targets: int, bearing_hz: float, duration_s: float, seed: int
+    targets: int, bearing_hz: float, duration_s: float, seed: int, vehicles: int = 1
 ) -> list[tuple[float, bytes]]:
-    """``(t_s, frame)`` in scenario time: every LANDING_TARGET repeated for each target."""
+    """``(t_s, frame)`` in scenario time: every message once per vehicle (system ids
+    1..``vehicles``), every LANDING_TARGET repeated for each of its ``targets / vehicles``."""
     d = duration_s + 1.0
     em = emitter.Emitter(
         scenarios.weave(duration_s=d),
@@ -64,12 +66,13 @@ def plan(
         if e.t_emit_s >= duration_s:
             break
         msgs = parser.parse_buffer(e.frame) or []
-        for msg in msgs:
-            key = (msg.get_srcSystem(), msg.get_srcComponent())
+        for msg, sysid in ((m, v) for m in msgs for v in range(1, vehicles + 1)):
+            key = (sysid, msg.get_srcComponent())
             enc = encoders.setdefault(
                 key, mavlink.MAVLink(None, srcSystem=key[0], srcComponent=key[1])
             )
-            copies = range(targets) if msg.get_type() == "LANDING_TARGET" else [None]
+            each = targets // vehicles
+            copies = range(each) if msg.get_type() == "LANDING_TARGET" else [None]
             for k in copies:
                 if k is not None:
                     msg.target_num = k
@@ -81,7 +84,8 @@ def plan(
 def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     """One run; ``web_page``: the service with its live map (``--web``) open in a headless
     Chromium all along (``bench/web_map.py``)."""
-    frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed)
+    vehicles = getattr(args, "vehicles", 1)
+    frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed, vehicles)
     n_bearings = sum(1 for _, f in frames if _msgid(f) == mavlink.MAVLINK_MSG_ID_LANDING_TARGET)
     extra = ["--estimate-rate-hz", "0", "--log-level", "WARNING"]
     web_port = free_port(socket.SOCK_STREAM)
@@ -100,10 +104,10 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
             page = open_page(f"http://127.0.0.1:{web_port}/")
 
         def on_estimate(s: Any) -> None:
-            per_target[str(s.key_expr).split("/")[2]] += 1
+            per_target[str(s.key_expr).rpartition("/")[0]] += 1  # mav_observer/SYSID/TARGET
             last_rx[0] = time.perf_counter()
 
-        sub = session.declare_subscriber("mav_observer/1/*/estimate", on_estimate)
+        sub = session.declare_subscriber("mav_observer/*/*/estimate", on_estimate)
         time.sleep(0.5)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 22)
@@ -136,9 +140,10 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     send_s = t_end - wall0
     tick = os.sysconf("SC_CLK_TCK")
     received = sum(per_target.values())
-    expected_each = n_bearings / args.targets
+    expected_each = n_bearings / (args.targets // vehicles * vehicles)
     return {
         "targets": args.targets,
+        "vehicles": vehicles,
         "targets_seen": len(per_target),
         "bearings_sent": n_bearings,
         "bearings_per_s": n_bearings / send_s,
@@ -162,7 +167,8 @@ def _msgid(frame: bytes) -> int:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--targets", type=int, default=100)
+    ap.add_argument("--targets", type=int, default=100, help="in all, shared by the vehicles")
+    ap.add_argument("--vehicles", type=int, default=1, help="system ids 1..N, each its stream")
     ap.add_argument("--bearing-hz", type=float, default=30.0, help="per target")
     ap.add_argument("--duration-s", type=float, default=20.0, help="sending time")
     ap.add_argument("--settle-s", type=float, default=10.0, help="wait for the last estimates")
@@ -171,7 +177,8 @@ def main() -> int:
     args = ap.parse_args()
     r = run(args)
     print(
-        f"{r['targets']} targets ({r['targets_seen']} seen), {r['bearings_per_s']:.0f} bearings/s "
+        f"{r['vehicles']} vehicle(s), {r['targets']} targets ({r['targets_seen']} seen), "
+        f"{r['bearings_per_s']:.0f} bearings/s "
         f"for {args.duration_s:g} s: {r['estimates_received']} of {r['bearings_sent']} estimates "
         f"received ({100 * r['received_share']:.2f} %, worst target "
         f"{100 * r['worst_target_share']:.2f} %), service CPU {r['service_cpu_pct']:.0f} % "

@@ -7,8 +7,9 @@ Run: ``python bench/web_map.py [--pairs N] [--json FILE]`` (about three minutes)
   Chromium, alternating, ``--pairs`` of each: the service's p50 and p99 with the page over
   without it (goal: within 1.1x); the page's own median delay from an estimate's publication
   to its DOM showing it (goal: under 200 ms).
-* **Many targets**: ``bench/service_targets.py``'s run, 100 targets at 10 Hz (1,000 estimates a
-  second, every one published and sent to the page), without and with the page: the share of
+* **Many targets**: ``bench/service_targets.py``'s run, 10 vehicles of 10 targets each at 10 Hz
+  (every vehicle's whole stream; 1,000 estimates a second, every one published and sent to
+  the page), without and with the page: the share of
   estimates delivered, the service's CPU, and how long after the last bearing the last
   estimate came (the service keeping up).
 * **The replay report of a one-hour flight** (the orbit scenario, 10 Hz gimbal, ``bench/.cache``):
@@ -71,8 +72,8 @@ def latency(pairs: int) -> dict[str, Any]:
 
 
 def targets() -> dict[str, Any]:
-    args = argparse.Namespace(targets=100, bearing_hz=10.0, duration_s=20.0, settle_s=10.0,
-                              seed=0)  # fmt: skip
+    args = argparse.Namespace(targets=100, vehicles=10, bearing_hz=10.0, duration_s=20.0,
+                              settle_s=10.0, seed=0)  # fmt: skip
     return {"without": service_targets.run(args), "page": service_targets.run(args, True)}
 
 
@@ -116,7 +117,8 @@ def main() -> int:
             page = (f", page events {r.get('page_events', 0):.0f}, DOM p50 "
                     f"{r.get('dom_latency_p50_ms', float('nan')):.0f} ms")  # fmt: skip
         late_ms = 1000 * r["drain_after_last_send_s"]
-        print(f"100 targets at 10 Hz, {name}: {100 * r['received_share']:.2f} % delivered, "
+        print(f"10 vehicles x 10 targets at 10 Hz, {name}: "
+              f"{100 * r['received_share']:.2f} % delivered, "
               f"service CPU {r['service_cpu_pct']:.0f} %, last estimate {late_ms:.0f} ms "
               f"after the last bearing{page}")  # fmt: skip
     print(

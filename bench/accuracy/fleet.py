@@ -43,6 +43,7 @@ BLOCK = "fleet"
 CASES: dict[str, dict[str, Any]] = {
     "hover": {"name": "fleet_hover"},
     "moving": {"name": "fleet_moving"},
+    "hover, three vehicles": {"name": "fleet_hover", "vehicles": 3},
     "hover, vehicle 2 lost at 15 s": {"name": "fleet_hover", "drop": (2, 15.0)},
     "moving, vehicle 2 lost at 15 s": {"name": "fleet_moving", "drop": (2, 15.0)},
     "moving, vehicle 2's clock 0.5 s off": {"name": "fleet_moving", "clock_offsets_s": {2: 0.5}},
@@ -61,8 +62,9 @@ def one_run(case: str, seed: int, duration_s: float) -> dict[str, Any]:
 
     opts = CASES[case]
     duration_s = opts.get("duration_s", duration_s)
-    fl = make_fleet(opts["name"], vehicles=2, seed=seed, duration_s=duration_s,
-                    drop=opts.get("drop"), clock_offsets_s=opts.get("clock_offsets_s"))  # fmt: skip
+    fl = make_fleet(opts["name"], vehicles=opts.get("vehicles", 2), seed=seed,
+                    duration_s=duration_s, drop=opts.get("drop"),
+                    clock_offsets_s=opts.get("clock_offsets_s"))  # fmt: skip
     keys = [f"{m.sysid}/gimbal" for m in fl.members]
     fusion = Fusion({"target": keys})
     ft = fusion.targets["target"]
@@ -184,9 +186,10 @@ def markdown(res: dict[str, Any], seeds: int, duration_s: float, wall_s: float) 
             "",
             f"`python -m bench.accuracy.fleet --seeds {seeds} --write-docs` ({len(res)} cases x "
             f"{seeds} runs of {duration_s:g} s, {wall_s:.0f} s): two vehicles of the emitter's "
-            f"fleet 69 deg apart seen from the target, 54 m from it, 0.5 deg gimbal bearings at 10"
-            f" Hz each; each tlog through `replay --rays` with default settings, the rays through "
-            f"`fuse` ([fleet.md](fleet.md)). Scored from 2 s after both vehicles' first rays to "
+            f"fleet 69 deg apart seen from the target (a third 127 deg from the first in one "
+            f"case), 54 m from it, 0.5 deg gimbal bearings at 10 Hz each; each tlog through "
+            f"`replay --rays` with default settings, the rays through `fuse` "
+            f"([fleet.md](fleet.md)). Scored from 2 s after all vehicles' first rays to "
             f"the end (the 180 s case: its last third), pooled over the runs: the error against "
             f"the joint Cramér-Rao bound of the rays fused (range over the runs), NEES per axis, "
             f"the time from both seeing the target to `converged`, the better single vehicle's own"
