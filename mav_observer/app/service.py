@@ -109,8 +109,10 @@ class Service:
         self.tick_s = tick_s
         self.tracker = Tracker(settings.tracker_config())
         z = settings["zenoh"]
-        if z["rays"]:
-            self.tracker.rays = []
+        #: rays are made while someone subscribes to them (``zenoh.rays``, docs/fleet.md)
+        self._rays = bool(z["rays"])
+        if self._rays:
+            self.pub.watch_rays()
         rate = float(z["estimate_max_rate_hz"])
         self.min_interval_s = 0.0 if rate <= 0.0 else 1.0 / rate
         self.status_period_s = float(z["status_period_s"])
@@ -228,6 +230,9 @@ class Service:
             )
             self._link_state = UP
         self._last_any_mono = now
+        want_rays = self._rays and self.pub.rays_listened
+        if want_rays != (self.tracker.rays is not None):
+            self.tracker.rays = [] if want_rays else None
         records = self.tracker.handle(t_unix_s, msg)
         sysid = msg.get_srcSystem()
         view = self.vehicles.get(sysid)

@@ -136,6 +136,10 @@ class Publications:
         self._vehicles: dict[int, tuple[Any, Any]] = {}  # sysid -> (token, queryable)
         self._latest: dict[str, str] = {}
         self._lock = threading.Lock()
+        #: a subscriber wants the rays (:meth:`watch_rays`; read by the service's thread)
+        self.rays_listened = False
+        self._ray_probe: Any = None
+        self._ray_listener: Any = None
 
     # -- keys ---------------------------------------------------------------------------
     def estimate_key(self, sysid: int, target: str) -> str:
@@ -170,6 +174,18 @@ class Publications:
                 self._latest[key] = payload
         pub.put(payload)
 
+    def watch_rays(self) -> None:
+        """Keep :attr:`rays_listened` true while some subscriber (a ``fuse`` node, a listener)
+        matches ``{prefix}/*/*/ray``: a ray nobody receives is not worth making (it costs
+        about as much as the estimate it comes with)."""
+        self._ray_probe = self.session.declare_publisher(f"{self.prefix}/*/*/ray")
+        self.rays_listened = bool(self._ray_probe.matching_status.matching)
+
+        def on_matching(status: Any) -> None:
+            self.rays_listened = bool(status.matching)
+
+        self._ray_listener = self._ray_probe.declare_matching_listener(on_matching)
+
     def ray(self, sysid: int, target: str, payload: str) -> None:
         """A bearing as a geodetic ray (not kept for queries: a stream, not a state)."""
         self._put(self.ray_key(sysid, target), payload, keep=False)
@@ -192,6 +208,10 @@ class Publications:
 
     def close(self) -> None:
         """Undeclare everything (the liveliness tokens disappear)."""
+        for decl in (self._ray_listener, self._ray_probe):
+            if decl is not None:
+                decl.undeclare()
+        self._ray_listener = self._ray_probe = None
         for token, queryable in self._vehicles.values():
             token.undeclare()
             queryable.undeclare()

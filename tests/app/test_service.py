@@ -76,6 +76,8 @@ class FakePublications:
         self.statuses: list[tuple[int, dict[str, Any]]] = []
         self.vehicles: list[int] = []
         self.rays: list[tuple[int, str, dict[str, Any]]] = []
+        self.rays_listened = True  # a fuse node subscribes
+        self.watching = False
         self.closed = False
 
     def vehicle(self, sysid: int) -> None:
@@ -89,6 +91,9 @@ class FakePublications:
 
     def ray(self, sysid: int, target: str, payload: str) -> None:
         self.rays.append((sysid, target, json.loads(payload)))
+
+    def watch_rays(self) -> None:
+        self.watching = True
 
     def close(self) -> None:
         self.closed = True
@@ -386,4 +391,17 @@ def test_rays_can_be_turned_off() -> None:
     items, em = messages(5.0)
     svc, pubs, _ = make_service(items, em, {"zenoh": {"rays": False}})
     svc.run(duration_s=6.0)
-    assert pubs.rays == [] and svc.vehicles[1].targets["gimbal"].estimates > 30
+    assert pubs.rays == [] and not pubs.watching
+    assert svc.vehicles[1].targets["gimbal"].estimates > 30
+
+
+def test_rays_are_made_only_while_someone_subscribes_to_them() -> None:
+    items, em = messages(10.0)
+    svc, pubs, _ = make_service(items, em)
+    pubs.rays_listened = False
+    svc.run(duration_s=5.0)
+    assert pubs.watching and pubs.rays == [] and svc.tracker.rays is None
+    pubs.rays_listened = True  # a fuse node came
+    svc.run(duration_s=11.0)
+    assert len(pubs.rays) > 30
+    assert all(r[2]["t_boot_s"] > em.boot_ms(4.5) / 1000 for r in pubs.rays)

@@ -212,3 +212,15 @@ def test_a_router_restart_is_rejoined() -> None:
     finally:
         for s in (sub, service, router):
             s.close()
+
+
+def test_rays_are_listened_to_while_a_subscriber_matches_them(pair) -> None:
+    server, client = pair
+    pubs = Publications(server, "mav_observer")
+    pubs.watch_rays()
+    assert not pubs.rays_listened
+    sub = client.declare_subscriber("mav_observer/2/gimbal/ray", lambda s: None)
+    assert wait_for(lambda: pubs.rays_listened, 5.0)
+    sub.undeclare()
+    assert wait_for(lambda: not pubs.rays_listened, 5.0)
+    pubs.close()
