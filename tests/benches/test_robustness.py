@@ -57,3 +57,24 @@ def test_a_sped_up_or_bursty_simulator_log_is_one_clock(fault: str) -> None:
     assert r["skipped"].get("time_jump", 0) <= 200, r["skipped"]  # its confirmation only
     assert r["reacquired"] == 0, r
     _goals(r)
+
+
+def test_a_log_is_scored_by_its_mean_over_the_seeds_with_the_seeds_counted() -> None:
+    """A log's RMS is the mean over its seeds against the bar of the batch fit's mean; the
+    seeds within the bar of their own fit are counted, and the mean's standard error given."""
+
+    def run(prod: float, batch: float) -> dict:
+        return {"product_rel_rms": prod, "batch_rel_rms": batch, "smoothed_rel_rms_all": 0.001,
+                "batch_rel_rms_all": 0.001, "lpn_hz": 4.0, "range_last_third_m": 30.0,
+                "time_above_5pct_share": 0.0, "worst_sigma_ratio": 2.0,
+                "worst_sigma_ratio_all": 2.0, "uncovered": 0, "after_convergence": 10,
+                "reacquired": 0, "reacquiring_s": 0.0, "events": {}}  # fmt: skip
+
+    case = {"case": "c", "log": Path("c.tlog"), "fault": "none", "about": ""}
+    # one seed at 1.5 % over a bar of 1 %, the mean (0.9 %) within it
+    row = robustness.summarise(case, [run(0.015, 0.004), run(0.003, 0.004), run(0.009, 0.004)])
+    assert row["ok"]["rms"] and row["product_worst"] == 0.015
+    assert row["seeds_within"] == 2
+    assert abs(row["product_se"] - 0.0034641) < 1e-6
+    row = robustness.summarise(case, [run(0.015, 0.004), run(0.009, 0.004)])
+    assert not row["ok"]["rms"]  # the mean, 1.2 %, is over the bar
