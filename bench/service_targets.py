@@ -41,7 +41,12 @@ from sim.live import stop_process  # noqa: E402
 
 
 def plan(
-    targets: int, bearing_hz: float, duration_s: float, seed: int, vehicles: int = 1
+    targets: int,
+    bearing_hz: float,
+    duration_s: float,
+    seed: int,
+    vehicles: int = 1,
+    attitude_hz: float = 20.0,
 ) -> list[tuple[float, bytes]]:
     """``(t_s, frame)`` in scenario time: every message once per vehicle (system ids
     1..``vehicles``), every LANDING_TARGET repeated for each of its ``targets / vehicles``."""
@@ -55,7 +60,7 @@ def plan(
             seed=seed,
             bearing_hz=bearing_hz,
             position_hz=50.0,
-            attitude_hz=20.0,
+            attitude_hz=attitude_hz,
             background_hz=0.0,
         ),
     )
@@ -85,8 +90,10 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     """One run; ``web_page``: the service with its live map (``--web``) open in a headless
     Chromium all along (``bench/web_map.py``)."""
     vehicles = getattr(args, "vehicles", 1)
-    frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed, vehicles)
-    n_bearings = sum(1 for _, f in frames if _msgid(f) == mavlink.MAVLINK_MSG_ID_LANDING_TARGET)
+    frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed, vehicles,
+                  getattr(args, "attitude_hz", 20.0))  # fmt: skip
+    keys = [_bearing_key(f) for _, f in frames]
+    n_bearings = sum(k is not None for k in keys)
     extra = ["--estimate-rate-hz", "0", "--log-level", "WARNING"]
     web_port = free_port(socket.SOCK_STREAM)
     if web_page:
@@ -96,6 +103,8 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     page_result: dict[str, float] = {}
     per_target: Counter[str] = Counter()
     last_rx = [0.0]
+    received: list[tuple[float, bytes]] = []
+    sent_at: dict[tuple[int, str, int], float] = {}
     try:
         session = connect_to_service(svc, mav_port, z_port)
         if web_page:
@@ -106,6 +115,7 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
         def on_estimate(s: Any) -> None:
             per_target[str(s.key_expr).rpartition("/")[0]] += 1  # mav_observer/SYSID/TARGET
             last_rx[0] = time.perf_counter()
+            received.append((last_rx[0], s.payload.to_bytes()))
 
         sub = session.declare_subscriber("mav_observer/*/*/estimate", on_estimate)
         time.sleep(0.5)
@@ -115,11 +125,13 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
         perf, sleep = time.perf_counter, time.sleep
         cpu0, main0, wall0 = cpu_ticks(svc.pid), cpu_ticks(svc.pid, svc.pid), perf()
         t0 = wall0 + 0.005
-        for t_sim, frame in frames:
+        for (t_sim, frame), key in zip(frames, keys, strict=True):
             d = t0 + t_sim - perf()
             if d > 0:
                 sleep(d)
             sock.sendto(frame, addr)
+            if key is not None:
+                sent_at[key] = perf()
         t_end = perf()
         cpu1, main1 = cpu_ticks(svc.pid), cpu_ticks(svc.pid, svc.pid)
         deadline = t_end + args.settle_s
@@ -138,6 +150,13 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
             page.quit()
         code, service_log = finish(svc, log, sock, session)
     send_s = t_end - wall0
+    lat_ms = []
+    for t_rx, payload in received:
+        doc = json.loads(payload)
+        t_sent = sent_at.get((doc["sysid"], doc["target"], round(doc["t_boot_s"] * 1000)))
+        if t_sent is not None:
+            lat_ms.append(1000.0 * (t_rx - t_sent))
+    lat_ms.sort()
     tick = os.sysconf("SC_CLK_TCK")
     received = sum(per_target.values())
     expected_each = n_bearings / (args.targets // vehicles * vehicles)
@@ -156,9 +175,28 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
         "udp_drops": drops,
         "drain_after_last_send_s": drain_s,
         "service_exit": code,
+        # a bearing sent to its estimate received (its time_usec names it)
+        "latency_matched": len(lat_ms),
+        "latency_p50_ms": _quantile(lat_ms, 0.5),
+        "latency_p99_ms": _quantile(lat_ms, 0.99),
         "service_log_tail": service_log.splitlines()[-3:],
         **page_result,
     }
+
+
+def _quantile(xs: list[float], q: float) -> float:
+    return xs[min(int(q * len(xs)), len(xs) - 1)] if xs else float("nan")
+
+
+_PARSER = mavlink.MAVLink(None)
+
+
+def _bearing_key(frame: bytes) -> tuple[int, str, int] | None:
+    """A LANDING_TARGET's (system id, target, time in ms), as its estimate names it."""
+    if _msgid(frame) != mavlink.MAVLINK_MSG_ID_LANDING_TARGET:
+        return None
+    msg = _PARSER.decode(bytearray(frame))
+    return (msg.get_srcSystem(), f"landing_target_{msg.target_num}", round(msg.time_usec / 1000))
 
 
 def _msgid(frame: bytes) -> int:
@@ -171,6 +209,12 @@ def main() -> int:
     ap.add_argument("--vehicles", type=int, default=1, help="system ids 1..N, each its stream")
     ap.add_argument("--bearing-hz", type=float, default=30.0, help="per target")
     ap.add_argument("--duration-s", type=float, default=20.0, help="sending time")
+    ap.add_argument(
+        "--attitude-hz",
+        type=float,
+        default=20.0,
+        help="ATTITUDE per vehicle (a LANDING_TARGET waits for the one after it)",
+    )
     ap.add_argument("--settle-s", type=float, default=10.0, help="wait for the last estimates")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", help="also write the result as JSON")
@@ -183,7 +227,9 @@ def main() -> int:
         f"received ({100 * r['received_share']:.2f} %, worst target "
         f"{100 * r['worst_target_share']:.2f} %), service CPU {r['service_cpu_pct']:.0f} % "
         f"(main thread {r['main_thread_cpu_pct']:.0f} %), UDP drops {r['udp_drops']}, last "
-        f"estimate {r['drain_after_last_send_s'] * 1000:.0f} ms after the last send"
+        f"estimate {r['drain_after_last_send_s'] * 1000:.0f} ms after the last send; a bearing "
+        f"to its estimate p50 {r['latency_p50_ms']:.2f} ms, p99 {r['latency_p99_ms']:.2f} ms "
+        f"({r['latency_matched']} matched)"
     )
     ok = r["estimates_received"] == r["bearings_sent"] and r["main_thread_cpu_pct"] < 100.0
     print(f"goal (every estimate, one core): {'met' if ok else 'NOT met'}")

@@ -35,8 +35,10 @@ from mav_observer.outputs.records import EstimateRecord
 
 log = logging.getLogger(__name__)
 
-#: Points of a vehicle's track and of a target's estimates kept for the page.
-TRACK_POINTS = 300
+#: Points of a vehicle's track and of a target's estimates kept for the page, one per
+#: TRACK_STEP_S of the autopilot's clock at most (as the page keeps them: ``web/map.js``).
+TRACK_POINTS = 600
+TRACK_STEP_S = 1.0
 #: Pages served at once (more are refused with 503).
 MAX_CLIENTS = 16
 #: Events queued for one page; beyond, the oldest go.
@@ -55,6 +57,16 @@ STATIC = {
 def static_file(name: str) -> bytes:
     """One of the page's files (``mav_observer/outputs/web/``)."""
     return resources.files("mav_observer.outputs").joinpath("web", name).read_bytes()
+
+
+def _step_due(entry: dict[str, Any], t_boot_s: float) -> bool:
+    """Whether a track gains a point at ``t_boot_s``: TRACK_STEP_S after its last one (or its
+    clock went back, a reboot), noting the time in ``entry``."""
+    last = entry.get("last_t")
+    if last is not None and 0.0 <= t_boot_s - last < TRACK_STEP_S:
+        return False
+    entry["last_t"] = t_boot_s
+    return True
 
 
 class MapFeed:
@@ -124,12 +136,13 @@ class MapFeed:
                 veh["pos_ned_m"] = [float(v) for v in vp]
                 veh["yaw_deg"] = yaw
                 veh["t_boot_s"] = t_boot_s
-                veh["track"].append([float(vp[0]), float(vp[1])])
+                if _step_due(veh, t_boot_s):
+                    veh["track"].append([float(vp[0]), float(vp[1])])
             tgt = self._targets.get(key)
             if tgt is None:
                 tgt = self._targets[key] = {"history": deque(maxlen=TRACK_POINTS)}
             tgt["record_json"] = text
-            if tp is not None:
+            if tp is not None and _step_due(tgt, t_boot_s):
                 tgt["history"].append([float(tp[0]), float(tp[1]), status])
             self.events += 1
             clients = list(self._clients)

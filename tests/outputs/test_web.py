@@ -79,6 +79,30 @@ def test_state_and_unknown_vehicles_and_targets(server: MapServer) -> None:
     assert get(server.url + "nothing")[0] == 404
 
 
+def test_tracks_gain_a_point_a_second_and_stay_bounded() -> None:
+    """An hour at 10 Hz leaves the page TRACK_POINTS points a track, one a second (a page
+    opened late draws no more than one opened early); a reboot's clock going back adds one."""
+    from dataclasses import replace
+
+    from mav_observer.outputs import web
+
+    feed = MapFeed()
+    base = record(0)
+    for k in range(2000):  # 200 s at 10 Hz
+        feed.add(replace(base, t_boot_s=100.0 + 0.1 * k))
+    st = feed.snapshot()
+    assert len(st["targets"]["1/gimbal"]["history"]) == 200
+    assert len(st["vehicles"]["1"]["track"]) == 200
+    for k in range(2000, 10000):
+        feed.add(replace(base, t_boot_s=100.0 + 1.0 * k))
+    st = feed.snapshot()
+    assert len(st["targets"]["1/gimbal"]["history"]) == web.TRACK_POINTS
+    feed = MapFeed()
+    for t, n in ((100.0, 1), (100.5, 1), (101.0, 2), (5.0, 3), (5.5, 3), (6.0, 4)):  # a reboot
+        feed.add(replace(base, t_boot_s=t))
+        assert len(feed.snapshot()["targets"]["1/gimbal"]["history"]) == n, t
+
+
 def _events(url: str) -> socket.socket:
     host, port = url.split("//")[1].rstrip("/").split(":")
     s = socket.create_connection((host, int(port)), timeout=5)

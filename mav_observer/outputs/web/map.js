@@ -19,6 +19,16 @@
   var fitted = false;
   // the page redraws at most this often: a browser beside the service takes little of its CPU
   var REDRAW_MS = 100;
+  // a track or an estimate's history gains a point at most this often (s of the autopilot's
+  // clock) and keeps this many: a page left open for hours stays as light as in its first minute
+  var TRACK_STEP_S = 1.0;
+  var TRACK_POINTS = 600;
+  var RING_POINTS = 32;
+  // a row's text is rewritten at most this often (its data attributes at every redraw), and
+  // a target is redrawn on the map only when it moved or its ellipse changed by a pixel:
+  // 100 targets at 10 Hz would otherwise keep a browser's core a third busy
+  var TEXT_MS = 500;
+  var ppm = 1.0;  // screen pixels per metre at the map's zoom, set at each redraw
 
   function toLL(n, e) {
     if (mode === "tiles") {
@@ -31,11 +41,22 @@
 
   function ring(n, e, sn, se, k) {
     var pts = [];
-    for (var i = 0; i < 48; i++) {
-      var a = 2 * Math.PI * i / 48;
+    for (var i = 0; i < RING_POINTS; i++) {
+      var a = 2 * Math.PI * i / RING_POINTS;
       pts.push(toLL(n + k * sn * Math.cos(a), e + k * se * Math.sin(a)));
     }
     return pts;
+  }
+
+  // add a point to a live track when TRACK_STEP_S has passed since its last one, dropping
+  // the oldest beyond TRACK_POINTS; ``owner.lastT`` keeps the time of the last point
+  function extend(owner, line, ll, t) {
+    if (owner.lastT !== undefined && t !== undefined && t - owner.lastT < TRACK_STEP_S &&
+        t >= owner.lastT) { return; }
+    owner.lastT = t;
+    var pts = line.getLatLngs();
+    if (pts.length >= TRACK_POINTS) { line.setLatLngs(pts.slice(pts.length - TRACK_POINTS + 1).concat([ll])); }
+    else { line.addLatLng(ll); }
   }
 
   function niceStep(span) {
@@ -65,7 +86,7 @@
   function init() {
     var useTiles = CFG.tiles && origin;
     mode = useTiles ? "tiles" : "local";
-    map = L.map("map", {crs: useTiles ? L.CRS.EPSG3857 : L.CRS.Simple, zoomSnap: 0.25,
+    map = L.map("map", {preferCanvas: true, crs: useTiles ? L.CRS.EPSG3857 : L.CRS.Simple, zoomSnap: 0.25,
                         minZoom: useTiles ? 2 : -6, maxZoom: useTiles ? 22 : 8});
     if (useTiles) {
       L.tileLayer(CFG.tiles, {maxZoom: 22}).addTo(map);
@@ -75,6 +96,7 @@
     }
     gridLayer = L.layerGroup().addTo(map);
     map.on("moveend zoomend", drawGrid);
+    map.on("zoomend", function () { for (var k in targets) { targets[k].drawn = null; } });
     drawGrid();
   }
 
@@ -122,12 +144,12 @@
     return t;
   }
 
-  function showVehicle(sysid, pos, yawDeg, track) {
+  function showVehicle(sysid, pos, yawDeg, track, t) {
     var v = vehicle(sysid);
     if (!pos) { return; }
     v.marker.setLatLng(toLL(pos[0], pos[1]));
     if (track) { v.track.setLatLngs(track.map(function (p) { return toLL(p[0], p[1]); })); }
-    else { v.track.addLatLng(toLL(pos[0], pos[1])); }
+    else { extend(v, v.track, toLL(pos[0], pos[1]), t); }
     if (yawDeg !== null && yawDeg !== undefined) {
       var y = yawDeg * Math.PI / 180, len = 5;
       v.heading.setLatLngs([toLL(pos[0], pos[1]),
@@ -139,21 +161,35 @@
     var t = target(key);
     var tp = rec.target_pos_ned_m;
     var sd = rec.rel_pos_std_ned_m;
+    var now = Date.now();
+    var text = history || rec.status !== t.status || !(now - t.textAt < TEXT_MS);
     t.row.setAttribute("data-status", rec.status);
     t.row.setAttribute("data-t", rec.t_boot_s);
-    t.row.querySelector(".st").textContent = rec.status;
-    t.row.querySelector(".st").className = "st " + rec.status;
-    t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
-    t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
+    if (text) {
+      t.textAt = now;
+      t.status = rec.status;
+      t.row.querySelector(".st").textContent = rec.status;
+      t.row.querySelector(".st").className = "st " + rec.status;
+      t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
+      t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
+    }
     if (!tp) { return; }
     t.row.setAttribute("data-n", tp[0]);
     t.row.setAttribute("data-e", tp[1]);
-    t.row.querySelector(".ne").textContent = tp[0].toFixed(2) + ", " + tp[1].toFixed(2);
-    t.marker.setLatLng(toLL(tp[0], tp[1]));
+    if (text) {
+      t.row.querySelector(".ne").textContent = tp[0].toFixed(2) + ", " + tp[1].toFixed(2);
+      if (sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
+    }
     if (history) { t.hist.setLatLngs(history.map(function (p) { return toLL(p[0], p[1]); })); }
-    else { t.hist.addLatLng(toLL(tp[0], tp[1])); }
+    else { extend(t, t.hist, toLL(tp[0], tp[1]), rec.t_boot_s); }
+    var sn = sd ? sd[0] : 0, se = sd ? sd[1] : 0, d = t.drawn;
+    if (!history && d && ppm * Math.max(Math.abs(tp[0] - d[0]), Math.abs(tp[1] - d[1]),
+                                        Math.abs(sn - d[2]), Math.abs(se - d[3])) < 1.0) {
+      return;  // not a pixel's change on the map
+    }
+    t.drawn = [tp[0], tp[1], sn, se];
+    t.marker.setLatLng(toLL(tp[0], tp[1]));
     if (sd) {
-      t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2);
       t.e1.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 1));
       t.e2.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 2));
     }
@@ -164,15 +200,27 @@
     }
   }
 
+  function metrePixels() {
+    var a = map.latLngToLayerPoint(toLL(0, 0)), b = map.latLngToLayerPoint(toLL(1, 0));
+    return Math.abs(b.y - a.y) || 1.0;
+  }
+
   function apply() {
     scheduled = false;
     var now = Date.now();
+    ppm = metrePixels();
+    var latest = {};  // each vehicle drawn once a batch, where its latest estimate puts it
     for (var key in pending) {
       var ev = pending[key];
       var rec = ev.record;
-      showVehicle(rec.sysid, rec.vehicle_pos_ned_m, ev.yaw_deg, null);
+      var last = latest[rec.sysid];
+      if (!last || rec.t_boot_s >= last.record.t_boot_s) { latest[rec.sysid] = ev; }
       showTarget(key, rec, null);
       latencies.push(now - waiting[key]);  // published to shown, the oldest event of the batch
+    }
+    for (var sysid in latest) {
+      var lv = latest[sysid];
+      showVehicle(sysid, lv.record.vehicle_pos_ned_m, lv.yaw_deg, null, lv.record.t_boot_s);
     }
     pending = {};
     waiting = {};
