@@ -9,7 +9,10 @@ emitted or injected tlog, its truth, and its DataFlash and ULog twins describe o
   ArduPilot 4.3-4.7 layout: roll and pitch against the horizon, ``YawB`` against the heading,
   ``YawE`` against north, degrees; the heading from ATTITUDE interpolated as the tracker
   does), GPS_GLOBAL_ORIGIN -> ``ORGN``; each type's FMT record before its first record, as
-  ArduPilot writes them; GLOBAL_POSITION_INT -> ``POS``.
+  ArduPilot writes them; GLOBAL_POSITION_INT -> ``POS``; LANDING_TARGET (a body or heading
+  frame) -> ``PL`` (ArduCopter 4.x layout, ``pZ`` first), its measurement ``mX, mY, mZ`` the
+  line of sight in NED (cm; rotated by ATTITUDE interpolated) times the target's distance (10
+  m when it has none), ``LastMeasMS`` its time, ``TAcq`` 1.
 * ULog: LOCAL_POSITION_NED -> ``vehicle_local_position``, ATTITUDE -> ``vehicle_attitude``
   (quaternion), GIMBAL_DEVICE_ATTITUDE_STATUS -> ``gimbal_device_attitude_status``,
   GPS_GLOBAL_ORIGIN -> the reference of ``vehicle_local_position``; the PX4 field names, a
@@ -48,6 +51,11 @@ DF_FORMATS = {
     "MNT": (202, "QBffffffff", "TimeUS,I,DRoll,Roll,DPitch,Pitch,DYawB,YawB,DYawE,YawE"),
     "MNTD": (202, "QBfffffffff", "TimeUS,I,DRoll,Roll,DPitch,Pitch,DYawB,YawB,DYawE,YawE,Dist"),
     "ORGN": (203, "QBLLe", "TimeUS,Type,Lat,Lng,Alt"),
+    "PL": (
+        206,
+        "QBBffffffffIIB",
+        "TimeUS,Heal,TAcq,pZ,pX,pY,vX,vY,mX,mY,mZ,LastMeasMS,EKFOutl,Est",
+    ),
     "POS": (204, "QLLfff", "TimeUS,Lat,Lng,Alt,RelHomeAlt,RelOriginAlt"),
     "IMU": (
         205,
@@ -161,7 +169,7 @@ class ULogWriter:
 
 _WANTED = (
     "LOCAL_POSITION_NED", "ATTITUDE", "GIMBAL_DEVICE_ATTITUDE_STATUS", "MOUNT_ORIENTATION",
-    "GPS_GLOBAL_ORIGIN", "GLOBAL_POSITION_INT", "DISTANCE_SENSOR",
+    "GPS_GLOBAL_ORIGIN", "GLOBAL_POSITION_INT", "DISTANCE_SENSOR", "LANDING_TARGET",
 )  # fmt: skip
 _YAW_IN_EARTH = 64
 #: The target a converted log's reader names, where it differs: (format, the tlog's target).
@@ -177,6 +185,26 @@ def _heading(messages: list[tuple[float, Any]]) -> Callable[[float], float]:
     tb = np.array([a[0] for a in att])
     yaw = np.unwrap(np.array([a[1] for a in att]))
     return lambda t: float(np.interp(t, tb, yaw))
+
+
+def _attitude(messages: list[tuple[float, Any]]) -> Callable[[float], tuple[float, ...]]:
+    """The vehicle's roll, pitch and yaw (rad) at a boot time (s), ATTITUDE interpolated
+    linearly (the yaw unwrapped)."""
+    att = [(m.time_boot_ms * 1e-3, m.roll, m.pitch, m.yaw) for _, m in messages
+           if m.get_type() == "ATTITUDE"]  # fmt: skip
+    if not att:
+        return lambda t: (math.nan, math.nan, math.nan)
+    a = np.array(att)
+    a[:, 3] = np.unwrap(a[:, 3])
+    return lambda t: tuple(float(np.interp(t, a[:, 0], a[:, k])) for k in (1, 2, 3))
+
+
+def _boot_ms(m: Any) -> int:
+    """A message's time on the autopilot's boot clock (ms; -1: none)."""
+    ms = getattr(m, "time_boot_ms", None)
+    if ms is None and m.get_type() == "LANDING_TARGET":
+        return m.time_usec // 1000
+    return -1 if ms is None else ms
 
 
 def _on_autopilot_clock(messages: list[tuple[float, Any]]) -> list[tuple[float, Any]]:
@@ -207,7 +235,7 @@ def _on_autopilot_clock(messages: list[tuple[float, Any]]) -> list[tuple[float, 
             out.append((t, m))
     stamps = [m.time_boot_ms for _, m in ap]
     if all(b >= a - 1000 for a, b in pairwise(stamps)):  # one boot
-        out.sort(key=lambda tm: getattr(tm[1], "time_boot_ms", -1))  # a logger's order
+        out.sort(key=lambda tm: _boot_ms(tm[1]))  # a logger's order
     return out
 
 
@@ -245,6 +273,7 @@ def convert(
     if kind not in (".bin", ".ulg"):
         raise ValueError(f"{out}: the output must end in .bin or .ulg")
     heading = _heading(messages)
+    attitude = _attitude(messages)
     n = 0
     with open(out, "wb") as fh:
         if kind == ".bin":
@@ -262,7 +291,7 @@ def convert(
                                              -9.8, 0.0, 0, 0, 40.0, 1, 1, 400, 400))  # fmt: skip
                             n += 1
                         next_imu_us += round(1e6 / imu_hz)
-                n += _write_df(df, m, heading, rangefinder)
+                n += _write_df(df, m, heading, rangefinder, attitude)
         else:
             t0 = int(messages[0][0] * 1e6) if messages else 0
             ul = ULogWriter(fh, t0)
@@ -289,8 +318,11 @@ def _write_df(
     m: Any,
     heading: Callable[[float], float],
     rangefinder: Callable[[float], float] | None,
+    attitude: Callable[[float], tuple[float, ...]],
 ) -> int:
     mtype = m.get_type()
+    if mtype == "LANDING_TARGET":
+        return _write_pl(df, m, attitude)
     if mtype == "GPS_GLOBAL_ORIGIN":
         df.write("ORGN", (0, 0, m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3))
         return 1
@@ -328,10 +360,34 @@ def _write_df(
     return 1
 
 
+def _write_pl(df: DataFlashWriter, m: Any, attitude: Callable[[float], tuple[float, ...]]) -> int:
+    from mav_observer.geo.frames import euler_to_dcm
+    from mav_observer.tracking.directions import Skip, landing_target_direction
+
+    t_us = int(m.time_usec)
+    roll, pitch, yaw = attitude(t_us * 1e-6)
+    try:
+        los = landing_target_direction(
+            frame=m.frame, angle_x=m.angle_x, angle_y=m.angle_y,
+            position_valid=getattr(m, "position_valid", 0), x=getattr(m, "x", 0.0),
+            y=getattr(m, "y", 0.0), z=getattr(m, "z", 0.0),
+            vehicle_dcm=euler_to_dcm(roll, pitch, yaw), vehicle_yaw=yaw,
+        )  # fmt: skip
+    except Skip:
+        return 0  # (an absolute local position needs the vehicle's: not written)
+    dist = m.distance if m.distance > 0 else 10.0
+    scale = 100.0 * dist / math.sqrt(sum(c * c for c in los))  # m -> cm
+    mx, my, mz = (c * scale for c in los)
+    df.write("PL", (t_us, 1, 1, dist, 0.0, 0.0, 0.0, 0.0, mx, my, mz, t_us // 1000, 0, 1))
+    return 1
+
+
 def _write_ulog(ul: ULogWriter, m: Any, origin: tuple[float, float, float] | None) -> int:
     mtype = m.get_type()
-    if mtype in ("MOUNT_ORIENTATION", "GLOBAL_POSITION_INT"):
-        return 0  # PX4 logs its mount as the gimbal's attitude; its origin is the reference
+    if mtype in ("MOUNT_ORIENTATION", "GLOBAL_POSITION_INT", "LANDING_TARGET"):
+        # PX4 logs its mount as the gimbal's attitude, its origin as the reference, and its
+        # landing target (landing_target_pose) as an absolute position: not written
+        return 0
     if mtype == "DISTANCE_SENSOR":
         ul.write("distance_sensor", (m.time_boot_ms * 1000, 0, m.min_distance * 0.01,
                                      m.max_distance * 0.01, m.current_distance * 0.01, 0.0,

@@ -14,7 +14,12 @@ On the autopilot's boot clock (``TimeUS``, ``TimeMS`` on old logs):
   angles, the demanded ones ``D*`` when a mount reports none), one mount instance (the
   lowest ``I``) -> MOUNT_ORIENTATION; ``Dist`` (the mount's own rangefinder, m; NaN: none) ->
   DISTANCE_SENSOR of orientation MAV_SENSOR_ROTATION_CUSTOM (the gimbal's range, fused with
-  the bearing of the same record).
+  the bearing of the same record);
+* precision landing (ArduCopter 3.6 on): ``PL`` ``mX, mY, mZ``, the landing target's measured
+  position relative to the vehicle (NED; its direction is the camera's line of sight, its
+  length the rangefinder's distance, not used), each new measurement (``LastMeasMS``, its
+  time) while the target is acquired (``TAcq``) -> LANDING_TARGET in
+  MAV_FRAME_LOCAL_OFFSET_NED, target 0.
 """
 
 from __future__ import annotations
@@ -31,6 +36,8 @@ from mav_observer.logs.messages import Stream, maker
 POSITION_RECORDS = ("XKF1", "NKF1", "EKF1")
 #: MAVLink's DISTANCE_SENSOR orientation of a sensor not fixed to the body (a gimbal's).
 MAV_SENSOR_ROTATION_CUSTOM = 100
+#: MAVLink's frame of a position relative to the vehicle, NED (a PL measurement's).
+MAV_FRAME_LOCAL_OFFSET_NED = 7
 
 
 def _one_instance(
@@ -79,6 +86,7 @@ def streams(log: DataFlashLog, notes: list[str]) -> list[Stream]:
     out += _origin(log, notes)
     out += _global_position(log)
     out += _mount(log, notes)
+    out += _precision_landing(log, notes)
     return out
 
 
@@ -235,3 +243,40 @@ def _mount(log: DataFlashLog, notes: list[str]) -> list[Stream]:
 
         out.append(Stream(t, 3, build_d))
     return out
+
+
+def _precision_landing(log: DataFlashLog, notes: list[str]) -> list[Stream]:
+    cols = log.columns("PL")
+    if cols is None:
+        return []  # (most flights have no precision landing: nothing to say)
+    if not {"TAcq", "mX", "mY", "mZ"} <= cols.keys():
+        notes.append(f"PL without its measurement (mX, mY, mZ; ArduCopter 3.6 on): not read "
+                     f"(its columns: {', '.join(cols)})")  # fmt: skip
+        return []
+    got = _sorted(log, cols)
+    if got is None:
+        return []
+    t, c = got
+    m = np.column_stack([c[k].astype(float) for k in ("mX", "mY", "mZ")])
+    keep = (c["TAcq"] != 0) & np.isfinite(m).all(axis=1) & (np.abs(m).sum(axis=1) > 0)
+    meas_us = t.astype(np.int64)
+    if "LastMeasMS" in c:  # one bearing per measurement, at its time (PL repeats the last)
+        ms = c["LastMeasMS"].astype(np.int64)
+        new = np.ones(len(ms), bool)
+        new[1:] = ms[1:] != ms[:-1]
+        keep &= new & (ms > 0)
+        meas_us = ms * 1000
+    if not keep.any():
+        notes.append("PL records without an acquired target (TAcq 0): no precision-landing "
+                     "bearing")  # fmt: skip
+        return []
+    t, m, meas_us = t[keep], m[keep] * 0.01, meas_us[keep]  # cm -> m
+    x, y, z = (m[:, k].tolist() for k in range(3))
+    usec = meas_us.tolist()
+    make = maker("LANDING_TARGET")
+
+    def build(i: int) -> Any:
+        return make(time_usec=usec[i], target_num=0, frame=MAV_FRAME_LOCAL_OFFSET_NED,
+                    position_valid=1, x=x[i], y=y[i], z=z[i])  # fmt: skip
+
+    return [Stream(t, 4, build)]

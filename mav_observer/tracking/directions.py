@@ -42,6 +42,7 @@ GIMBAL_BAD_FAILURES = (
 
 # MAV_FRAME values used by LANDING_TARGET
 MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_LOCAL_OFFSET_NED = 7
 MAV_FRAME_BODY_FRD = 12
 MAV_FRAME_LOCAL_FRD = 20
 
@@ -290,6 +291,9 @@ def landing_target_direction(
       (``Rz(+yaw)``; ArduPilot's receiver rotates by ``-yaw``, a reported bug, #31651).
     * ``MAV_FRAME_LOCAL_NED`` (1) with ``position_valid``: the target's absolute local position
       (PX4's convention): line of sight = target minus vehicle position.
+    * ``MAV_FRAME_LOCAL_OFFSET_NED`` (7) with ``position_valid``: the target's position
+      relative to the vehicle, NED: the line of sight itself (ArduPilot's precision-landing
+      measurement, ``PL`` ``mX, mY, mZ``, replayed from a DataFlash log).
     """
     if position_valid == 1:
         _finite("non_finite", x, y, z)
@@ -300,6 +304,10 @@ def landing_target_direction(
             if los[0] == 0.0 and los[1] == 0.0 and los[2] == 0.0:
                 raise Skip("zero_length", "target at the vehicle")
             return los
+        if frame == MAV_FRAME_LOCAL_OFFSET_NED:
+            if x == 0.0 and y == 0.0 and z == 0.0:
+                raise Skip("zero_length", "target at the vehicle")
+            return (x, y, z)
         los = (x, y, z)
     elif position_valid == 0:
         _finite("non_finite", angle_x, angle_y)

@@ -237,3 +237,14 @@ def test_attitude_checks() -> None:
         A.check_attitude(0.0, 2.0, 0.0)
     with pytest.raises(Skip, match="non_finite"):
         A.check_attitude(math.inf, 0.0, 0.0)
+
+
+def test_landing_target_offset_ned_is_the_line_of_sight_itself() -> None:
+    """MAV_FRAME_LOCAL_OFFSET_NED with a position: relative to the vehicle, NED (ArduPilot's
+    PL measurement): no attitude, no sensor rotation; a zero vector is refused."""
+    sensor = A.landing_target_sensor("forward")
+    v = lt(7, 0.0, 0.0, att=(D(30), D(10), D(90)), position_valid=1, x=3.0, y=-4.0, z=12.0,
+           sensor=sensor)  # fmt: skip
+    assert np.allclose(v, np.array([3.0, -4.0, 12.0]) / 13.0)
+    with pytest.raises(A.Skip):
+        lt(7, 0.0, 0.0, position_valid=1, x=0.0, y=0.0, z=0.0)
