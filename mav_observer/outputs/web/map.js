@@ -17,7 +17,8 @@
   var latencies = [];
   var events = 0;
   var fitted = false;
-  // the page redraws at most this often: a browser beside the service takes little of its CPU
+  // the live page redraws at most this often, on a canvas (the report, static, in SVG): a
+  // browser beside the service takes little of its CPU
   var REDRAW_MS = 100;
   // a track or an estimate's history gains a point at most this often (s of the autopilot's
   // clock) and keeps this many: a page left open for hours stays as light as in its first minute
@@ -86,7 +87,7 @@
   function init() {
     var useTiles = CFG.tiles && origin;
     mode = useTiles ? "tiles" : "local";
-    map = L.map("map", {preferCanvas: true, crs: useTiles ? L.CRS.EPSG3857 : L.CRS.Simple, zoomSnap: 0.25,
+    map = L.map("map", {preferCanvas: !REPORT, crs: useTiles ? L.CRS.EPSG3857 : L.CRS.Simple, zoomSnap: 0.25,
                         minZoom: useTiles ? 2 : -6, maxZoom: useTiles ? 22 : 8});
     if (useTiles) {
       L.tileLayer(CFG.tiles, {maxZoom: 22}).addTo(map);
