@@ -34,9 +34,10 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from mav_observer.geo.frames import euler_from_dcm, quat_from_euler, quat_to_dcm
+from mav_observer.geo.frames import euler_from_dcm, euler_to_dcm, quat_from_euler, quat_to_dcm
 from mav_observer.mavlink.dialect import MSG_ID
 from mav_observer.mavlink.tlog import TlogReader
+from mav_observer.tracking.directions import Skip, landing_target_direction
 
 # -- DataFlash ------------------------------------------------------------------------
 
@@ -361,9 +362,6 @@ def _write_df(
 
 
 def _write_pl(df: DataFlashWriter, m: Any, attitude: Callable[[float], tuple[float, ...]]) -> int:
-    from mav_observer.geo.frames import euler_to_dcm
-    from mav_observer.tracking.directions import Skip, landing_target_direction
-
     t_us = int(m.time_usec)
     roll, pitch, yaw = attitude(t_us * 1e-6)
     try:
