@@ -23,6 +23,7 @@ import argparse
 import json
 import os
 import socket
+import subprocess
 import sys
 import time
 from collections import Counter
@@ -86,9 +87,10 @@ def plan(
     return out
 
 
-def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
+def run(args: argparse.Namespace, web_page: bool | str = False) -> dict[str, Any]:
     """One run; ``web_page``: the service with its live map (``--web``) open in a headless
-    Chromium all along (``bench/web_map.py``)."""
+    Chromium all along (``True``), or its events read by ``curl`` (``"reader"``: what the
+    service spends on a page, without a browser on its cores) (``bench/web_map.py``)."""
     vehicles = getattr(args, "vehicles", 1)
     frames = plan(args.targets, args.bearing_hz, args.duration_s, args.seed, vehicles,
                   getattr(args, "attitude_hz", 20.0))  # fmt: skip
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     if web_page:
         extra += ["--web", f"127.0.0.1:{web_port}"]
     svc, mav_port, z_port, log = start_service(extra)
-    session = sock = page = None
+    session = sock = page = reader = None
     page_result: dict[str, float] = {}
     per_target: Counter[str] = Counter()
     last_rx = [0.0]
@@ -107,7 +109,10 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     sent_at: dict[tuple[int, str, int], float] = {}
     try:
         session = connect_to_service(svc, mav_port, z_port)
-        if web_page:
+        if web_page == "reader":  # the events read without a browser's rendering
+            reader = subprocess.Popen(["curl", "-sN", f"http://127.0.0.1:{web_port}/events"],
+                                      stdout=subprocess.DEVNULL)  # fmt: skip
+        elif web_page:
             from _browser import open_page
 
             page = open_page(f"http://127.0.0.1:{web_port}/")
@@ -148,6 +153,8 @@ def run(args: argparse.Namespace, web_page: bool = False) -> dict[str, Any]:
     finally:
         if page is not None:
             page.quit()
+        if reader is not None:
+            stop_process(reader)
         code, service_log = finish(svc, log, sock, session)
     send_s = t_end - wall0
     lat_ms = []
