@@ -99,6 +99,10 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
         assert shown["t"] == pytest.approx(published["t_boot_s"], abs=1e-6)
         assert shown["n"] == pytest.approx(published["target_pos_ned_m"][0], abs=1e-6)
         assert shown["e"] == pytest.approx(published["target_pos_ned_m"][1], abs=1e-6)
+        # the row's text, rewritten at most every 0.5 s, ends on the last estimate too
+        tp = published["target_pos_ned_m"]
+        assert el.find_element("css selector", ".ne").text == f"{tp[0]:.2f}, {tp[1]:.2f}"
+        assert el.find_element("css selector", ".age").text == f"t {published['t_boot_s']:.1f} s"
         median = float(browser.find_element("id", "latency").get_attribute("data-median"))
         assert median < 200.0  # published -> shown in the page's DOM, ms
         browser.save_screenshot(str(figures(tmp_path) / "live_map.png"))

@@ -30,6 +30,7 @@
   // 100 targets at 10 Hz would otherwise keep a browser's core a third busy
   var TEXT_MS = 500;
   var ppm = 1.0;  // screen pixels per metre at the map's zoom, set at each redraw
+  var textTimer = null;
 
   function toLL(n, e) {
     if (mode === "tiles") {
@@ -158,29 +159,43 @@
     }
   }
 
+  function writeText(t, rec, now) {
+    var tp = rec.target_pos_ned_m, sd = rec.rel_pos_std_ned_m;
+    t.textAt = now;
+    t.status = rec.status;
+    t.stale = null;
+    t.row.querySelector(".st").textContent = rec.status;
+    t.row.querySelector(".st").className = "st " + rec.status;
+    t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
+    t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
+    if (tp) { t.row.querySelector(".ne").textContent = tp[0].toFixed(2) + ", " + tp[1].toFixed(2); }
+    if (tp && sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
+  }
+
+  function flushText() {
+    textTimer = null;
+    var now = Date.now();
+    for (var k in targets) { if (targets[k].stale) { writeText(targets[k], targets[k].stale, now); } }
+  }
+
   function showTarget(key, rec, history) {
     var t = target(key);
     var tp = rec.target_pos_ned_m;
     var sd = rec.rel_pos_std_ned_m;
     var now = Date.now();
-    var text = history || rec.status !== t.status || !(now - t.textAt < TEXT_MS);
     t.row.setAttribute("data-status", rec.status);
     t.row.setAttribute("data-t", rec.t_boot_s);
-    if (text) {
-      t.textAt = now;
-      t.status = rec.status;
-      t.row.querySelector(".st").textContent = rec.status;
-      t.row.querySelector(".st").className = "st " + rec.status;
-      t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
-      t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
+    if (tp) {
+      t.row.setAttribute("data-n", tp[0]);
+      t.row.setAttribute("data-e", tp[1]);
+    }
+    if (history || rec.status !== t.status || !(now - t.textAt < TEXT_MS)) {
+      writeText(t, rec, now);
+    } else {  // written when TEXT_MS has passed, should no newer estimate come
+      t.stale = rec;
+      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
     }
     if (!tp) { return; }
-    t.row.setAttribute("data-n", tp[0]);
-    t.row.setAttribute("data-e", tp[1]);
-    if (text) {
-      t.row.querySelector(".ne").textContent = tp[0].toFixed(2) + ", " + tp[1].toFixed(2);
-      if (sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
-    }
     if (history) { t.hist.setLatLngs(history.map(function (p) { return toLL(p[0], p[1]); })); }
     else { extend(t, t.hist, toLL(tp[0], tp[1]), rec.t_boot_s); }
     var sn = sd ? sd[0] : 0, se = sd ? sd[1] : 0, d = t.drawn;
