@@ -273,16 +273,22 @@ class FusedTarget:
         var = learnt[self._veh[:n]]
         return 1.0 / np.where(np.isnan(var), self._var[:n], var)
 
-    def _normal(self, p: np.ndarray, *, robust: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _geometry(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Each ray's range to ``p``, unit line to it, its line of sight's component across
+        that line (the angle's components) and the squared angle."""
         n = self._n
-        q, u = self._q[:n], self._u[:n]
-        w = self._weights()
-        d = p - q
+        d = p - self._q[:n]
+        u = self._u[:n]
         r = np.sqrt(np.einsum("ij,ij->i", d, d))
         dh = d / r[:, None]
         ud = np.einsum("ij,ij->i", u, dh)
-        e = u - ud[:, None] * dh  # u across the line to p: the angle's components
-        ang2 = np.einsum("ij,ij->i", e, e)
+        e = u - ud[:, None] * dh
+        return r, dh, e, np.einsum("ij,ij->i", e, e)
+
+    def _normal(self, p: np.ndarray, *, robust: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = self._n
+        w = self._weights()
+        r, dh, e, ang2 = self._geometry(p)
         m = np.sqrt(ang2 * w)
         if robust:
             hub = np.where(m > HUBER_K, HUBER_K / np.maximum(m, 1e-12), 1.0)
@@ -334,8 +340,7 @@ class FusedTarget:
             p = p + dp
             if float(dp @ dp) < 1e-8:
                 break
-        h, _g, ang2 = self._normal(p, robust=False)
-        self._learn_noise(ang2)
+        self._learn_noise(self._geometry(p)[3])  # the noise, then the information with it
         h, _g, ang2 = self._normal(p, robust=False)
         if (
             not np.all(np.isfinite(p))
