@@ -37,3 +37,22 @@ def page_figures(drv: Any) -> dict[str, float]:
     lat = drv.find_element("id", "latency").get_attribute("data-median") or "nan"
     events = drv.find_element("id", "count").get_attribute("data-events") or "0"
     return {"dom_latency_p50_ms": float(lat), "page_events": float(events)}
+
+
+def browser_cpu_ticks() -> int:
+    """CPU ticks (user and system) of every Chromium process on this machine so far (the
+    benches' own page: nothing else runs a Chromium here)."""
+    total = 0
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/comm") as f:
+                if "chrom" not in f.read():
+                    continue
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])
+        except (OSError, IndexError, ValueError):
+            pass  # a process that ended meanwhile
+    return total

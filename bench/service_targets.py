@@ -128,6 +128,7 @@ def run(args: argparse.Namespace, web_page: bool | str = False) -> dict[str, Any
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 22)
         addr = ("127.0.0.1", mav_port)
         perf, sleep = time.perf_counter, time.sleep
+        browser0 = _browser_ticks(page)
         cpu0, main0, wall0 = cpu_ticks(svc.pid), cpu_ticks(svc.pid, svc.pid), perf()
         t0 = wall0 + 0.005
         for (t_sim, frame), key in zip(frames, keys, strict=True):
@@ -139,6 +140,7 @@ def run(args: argparse.Namespace, web_page: bool | str = False) -> dict[str, Any
                 sent_at[key] = perf()
         t_end = perf()
         cpu1, main1 = cpu_ticks(svc.pid), cpu_ticks(svc.pid, svc.pid)
+        browser1 = _browser_ticks(page)
         deadline = t_end + args.settle_s
         while perf() < deadline and sum(per_target.values()) < n_bearings:
             sleep(0.05)
@@ -179,6 +181,8 @@ def run(args: argparse.Namespace, web_page: bool | str = False) -> dict[str, Any
         "worst_target_share": min(per_target.values(), default=0) / expected_each,
         "service_cpu_pct": 100.0 * (cpu1 - cpu0) / tick / send_s,
         "main_thread_cpu_pct": 100.0 * (main1 - main0) / tick / send_s,
+        # the page's Chromium over the sending window, all its processes (NaN: no page)
+        "browser_cpu_pct": 100.0 * (browser1 - browser0) / tick / send_s,
         "udp_drops": drops,
         "drain_after_last_send_s": drain_s,
         "service_exit": code,
@@ -189,6 +193,14 @@ def run(args: argparse.Namespace, web_page: bool | str = False) -> dict[str, Any
         "service_log_tail": service_log.splitlines()[-3:],
         **page_result,
     }
+
+
+def _browser_ticks(page: Any) -> float:
+    if page is None:
+        return float("nan")
+    from _browser import browser_cpu_ticks
+
+    return float(browser_cpu_ticks())
 
 
 def _quantile(xs: list[float], q: float) -> float:

@@ -100,6 +100,10 @@ def targets(pairs: int, attitude_hz: float) -> dict[str, Any]:
         "p99_ratio": med(w["latency_p99_ms"] / b["latency_p99_ms"] for b, w in runs),
         "p50_ms": med(b["latency_p50_ms"] for b, _ in runs),
         "p99_ms": med(b["latency_p99_ms"] for b, _ in runs),
+        "dom_latency_p50_ms": med(w["dom_latency_p50_ms"] for _, w in runs),
+        "browser_cpu_pct": med(w["browser_cpu_pct"] for _, w in runs),
+        "service_cpu_pct_page": med(w["service_cpu_pct"] for _, w in runs),
+        "service_cpu_pct": med(b["service_cpu_pct"] for b, _ in runs),
     }
 
 
@@ -156,7 +160,10 @@ def main() -> int:
         print(f"10 x 10, ATTITUDE at {t['attitude_hz']:g} Hz, the service's latency with the "
               f"page over without: p50 {t['p50_ratio']:.2f}x, p99 {t['p99_ratio']:.2f}x "
               f"(without: p50 {t['p50_ms']:.2f} ms, p99 {t['p99_ms']:.2f} ms); curl instead: "
-              f"p50 {t['reader_p50_ratio']:.2f}x, p99 {t['reader_p99_ratio']:.2f}x")  # fmt: skip
+              f"p50 {t['reader_p50_ratio']:.2f}x, p99 {t['reader_p99_ratio']:.2f}x; Chromium "
+              f"{t['browser_cpu_pct']:.0f} % of a core, the service "
+              f"{t['service_cpu_pct_page']:.0f} % ({t['service_cpu_pct']:.0f} % without); DOM p50 "
+              f"{t['dom_latency_p50_ms']:.0f} ms")  # fmt: skip
     print(
         f"one-hour report: {rep['bytes'] / 1e6:.1f} MB, opened and shown in {rep['open_s']:.2f} s"
     )

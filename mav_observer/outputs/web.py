@@ -1,17 +1,18 @@
 """The live map: a local web page beside the service (``mav-observer run --web HOST:PORT``).
 
-The service hands each estimate it publishes to :class:`MapFeed` (a dictionary update and a
-put on each page's bounded queue: never a wait, whatever the pages do); :class:`MapServer`
-serves, from its own threads:
+The service hands each estimate it publishes to :class:`MapFeed` (an append to its inbox:
+never a wait, whatever the pages do, and nothing computed in the service's thread);
+:class:`MapServer` takes them in every BATCH_S and serves, from its own threads:
 
 * ``/``: the page (``web/index.html``, ``web/map.js`` and Leaflet, vendored with its licence:
   nothing is fetched from elsewhere). Offline first: the local frame's metric grid; a tile
   layer only when a tile URL is set (``--web-tiles``) and the origin is known;
 * ``/state``: the latest of everything as JSON (each vehicle's origin, position, heading and
   recent track; each target's latest record and its recent estimates);
-* ``/events``: server-sent events, one per estimate, ``{"key", "yaw_deg", "sent_ms",
-  "origin", "record"}`` (``record`` as ``docs/schema.md``); a page too slow to keep up loses
-  the oldest events (it redraws from the latest), counted in ``/state``'s ``dropped``;
+* ``/events``: server-sent events, one every BATCH_S at most, each a JSON array of the latest
+  estimate of each target that had one, ``{"key", "yaw_deg", "sent_ms", "origin", "record"}``
+  (``record`` as ``docs/schema.md``); a page too slow to keep up loses the oldest batches
+  (it redraws from the latest), counted in ``/state``'s ``dropped``;
 * ``/vehicle/N``, ``/target/N/NAME``: one vehicle's or target's part of ``/state`` (404 for
   one not seen).
 
@@ -41,10 +42,13 @@ TRACK_POINTS = 600
 TRACK_STEP_S = 1.0
 #: Pages served at once (more are refused with 503).
 MAX_CLIENTS = 16
-#: Events queued for one page; beyond, the oldest go.
-QUEUE_LEN = 512
-#: A page is written to at most once per this long (s): its events come in batches.
-BATCH_S = 0.05
+#: Batches of events queued for one page (20 s of them); beyond, the oldest go.
+QUEUE_LEN = 100
+#: The feed takes in the service's estimates and sends the pages a batch this often (s): the
+#: rate the page redraws at, at most (5 Hz: a browser beside the service takes little of its CPU).
+BATCH_S = 0.2
+#: Estimates waiting for the feed's next batch, at most.
+INBOX_LEN = 100_000
 STATIC = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/map.js": ("map.js", "text/javascript; charset=utf-8"),
@@ -70,16 +74,22 @@ def _step_due(entry: dict[str, Any], t_boot_s: float) -> bool:
 
 
 class MapFeed:
-    """What the page shows, fed by the service: thread-safe, and :meth:`add` never waits."""
+    """What the page shows, fed by the service: thread-safe. :meth:`add` is an append to an
+    inbox, so the service's estimates are not delayed by the page's bookkeeping: that runs in
+    :meth:`pump` (every BATCH_S, from :class:`MapServer`'s thread, and before a snapshot)."""
 
     def __init__(self, max_clients: int = MAX_CLIENTS, queue_len: int = QUEUE_LEN) -> None:
         self._lock = threading.Lock()
+        # (the bound only matters should the pump stall: the oldest updates go first)
+        self._inbox: deque[tuple[Any, ...]] = deque(maxlen=INBOX_LEN)
         self._vehicles: dict[int, dict[str, Any]] = {}
         self._targets: dict[str, dict[str, Any]] = {}
-        self._clients: list[queue.Queue[str]] = []
+        self._clients: list[queue.Queue[bytes]] = []
         self.max_clients = max_clients
         self.queue_len = queue_len
+        #: batches a page was too slow to take (the oldest go)
         self.dropped = 0
+        #: estimates taken in
         self.events = 0
         #: published texts that were not estimate records (``add_published``)
         self.bad = 0
@@ -92,71 +102,85 @@ class MapFeed:
         rec_json: str | None = None,
     ) -> None:
         """An estimate the service published (``rec_json``: its JSON, when already made), the
-        vehicle's heading at its time, its origin. A dictionary update and a put per page."""
-        text = rec.to_json() if rec_json is None else rec_json
-        yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
-        tp = rec.target_pos_ned_m
-        self._add(rec.sysid, rec.target, rec.t_boot_s, rec.vehicle_pos_ned_m, tp,
-                  str(rec.estimate.status), yaw, origin, text)  # fmt: skip
+        vehicle's heading at its time, its origin. An append: never a wait, nothing computed."""
+        self._inbox.append((rec, yaw_rad, origin, rec_json, time.time()))
 
     def add_published(self, text: str) -> None:
         """An estimate record as a service published it (its JSON, ``docs/schema.md``:
         ``mav-observer map``); one that is not such a record is counted in :attr:`bad`."""
-        try:
-            d = json.loads(text)
-            sysid, target = int(d["sysid"]), str(d["target"])
-            t, status = float(d["t_boot_s"]), str(d["status"])
-            vp, tp = d.get("vehicle_pos_ned_m"), d.get("target_pos_ned_m")
-        except (ValueError, KeyError, TypeError):
-            self.bad += 1
-            return
-        self._add(sysid, target, t, vp, tp, status, None, None, text)
+        self._inbox.append((None, None, None, text, time.time()))
 
-    def _add(
-        self,
-        sysid: int,
-        target: str,
-        t_boot_s: float,
-        vp: Any,
-        tp: Any,
-        status: str,
-        yaw: float | None,
-        origin: dict[str, Any] | None,
-        text: str,
-    ) -> None:
-        key = f"{sysid}/{target}"
+    def pump(self) -> None:
+        """Take in what was added: the state, and to each page one batch of events, the
+        latest estimate of each target that had one."""
         with self._lock:
-            veh = self._vehicles.get(sysid)
-            if veh is None:
-                veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
-            if origin is not None and veh.get("origin") != origin:
-                veh["origin"] = origin
-                veh["origin_json"] = json.dumps(origin)
-            if vp is not None:
-                veh["pos_ned_m"] = [float(v) for v in vp]
-                veh["yaw_deg"] = yaw
-                veh["t_boot_s"] = t_boot_s
-                if _step_due(veh, t_boot_s):
-                    veh["track"].append([float(vp[0]), float(vp[1])])
-            tgt = self._targets.get(key)
-            if tgt is None:
-                tgt = self._targets[key] = {"history": deque(maxlen=TRACK_POINTS)}
-            tgt["record_json"] = text
-            if tp is not None and _step_due(tgt, t_boot_s):
-                tgt["history"].append([float(tp[0]), float(tp[1]), status])
-            self.events += 1
+            latest: dict[str, tuple[float | None, float, str, str]] = {}
+            inbox = self._inbox
+            while inbox:
+                taken = self._take(*inbox.popleft())
+                if taken is not None:
+                    latest[taken[0]] = taken[1:]
             clients = list(self._clients)
-            origin_json = veh.get("origin_json", "null")
-        if not clients:
+        if not clients or not latest:
             return
-        event = (
+        events = ",".join(
             f'{{"key":{json.dumps(key)},"yaw_deg":{"null" if yaw is None else repr(yaw)},'
-            f'"sent_ms":{time.time() * 1000.0!r},"origin":{origin_json},"record":{text}}}'
+            f'"sent_ms":{sent_ms!r},"origin":{origin_json},"record":{text}}}'
+            for key, (yaw, sent_ms, origin_json, text) in latest.items()
         )
+        batch = b"data: [" + events.encode() + b"]\n\n"
         for q in clients:
-            _put_dropping_oldest(q, event, self)
+            _put_dropping_oldest(q, batch, self)
+
+    def _take(
+        self,
+        rec: EstimateRecord | None,
+        yaw_rad: float | None,
+        origin: dict[str, Any] | None,
+        text: str | None,
+        sent_s: float,
+    ) -> tuple[str, float | None, float, str, str] | None:
+        """One added estimate into the state (under the lock): ``(key, yaw_deg, sent_ms,
+        origin JSON, record JSON)``, or ``None`` for a published text that is not a record."""
+        if rec is not None:
+            text = rec.to_json() if text is None else text
+            sysid, target, t_boot_s = rec.sysid, rec.target, rec.t_boot_s
+            vp, tp, status = rec.vehicle_pos_ned_m, rec.target_pos_ned_m, str(rec.estimate.status)
+        else:
+            try:
+                d = json.loads(text or "")
+                sysid, target = int(d["sysid"]), str(d["target"])
+                t_boot_s, status = float(d["t_boot_s"]), str(d["status"])
+                vp, tp = d.get("vehicle_pos_ned_m"), d.get("target_pos_ned_m")
+            except (ValueError, KeyError, TypeError):
+                self.bad += 1
+                return None
+        assert text is not None
+        yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
+        key = f"{sysid}/{target}"
+        veh = self._vehicles.get(sysid)
+        if veh is None:
+            veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
+        if origin is not None and veh.get("origin") is not origin and veh.get("origin") != origin:
+            veh["origin"] = origin
+            veh["origin_json"] = json.dumps(origin)
+        if vp is not None:
+            veh["pos_ned_m"] = [float(v) for v in vp]
+            veh["yaw_deg"] = yaw
+            veh["t_boot_s"] = t_boot_s
+            if _step_due(veh, t_boot_s):
+                veh["track"].append([float(vp[0]), float(vp[1])])
+        tgt = self._targets.get(key)
+        if tgt is None:
+            tgt = self._targets[key] = {"history": deque(maxlen=TRACK_POINTS)}
+        tgt["record_json"] = text
+        if tp is not None and _step_due(tgt, t_boot_s):
+            tgt["history"].append([float(tp[0]), float(tp[1]), status])
+        self.events += 1
+        return key, yaw, sent_s * 1000.0, veh.get("origin_json", "null"), text
 
     def snapshot(self) -> dict[str, Any]:
+        self.pump()
         with self._lock:
             return {
                 "vehicles": {
@@ -175,16 +199,16 @@ class MapFeed:
                 "clients": len(self._clients),
             }
 
-    def subscribe(self) -> queue.Queue[str] | None:
-        """A new page's event queue, ``None`` when :attr:`max_clients` are served."""
+    def subscribe(self) -> queue.Queue[bytes] | None:
+        """A new page's queue of event batches, ``None`` when :attr:`max_clients` are served."""
         with self._lock:
             if len(self._clients) >= self.max_clients:
                 return None
-            q: queue.Queue[str] = queue.Queue(maxsize=self.queue_len)
+            q: queue.Queue[bytes] = queue.Queue(maxsize=self.queue_len)
             self._clients.append(q)
             return q
 
-    def unsubscribe(self, q: queue.Queue[str]) -> None:
+    def unsubscribe(self, q: queue.Queue[bytes]) -> None:
         with self._lock:
             if q in self._clients:
                 self._clients.remove(q)
@@ -194,10 +218,10 @@ def _finite(v: Any) -> Any:
     raise TypeError(f"not JSON: {v!r}")
 
 
-def _put_dropping_oldest(q: queue.Queue[str], event: str, feed: MapFeed) -> None:
+def _put_dropping_oldest(q: queue.Queue[bytes], batch: bytes, feed: MapFeed) -> None:
     while True:
         try:
-            q.put_nowait(event)
+            q.put_nowait(batch)
             return
         except queue.Full:
             try:
@@ -264,21 +288,18 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.flush()
             while not self.server.closing.is_set():
                 try:
-                    batch = [q.get(timeout=0.5)]
+                    batches = [q.get(timeout=0.5)]
                 except queue.Empty:
                     self.wfile.write(b": keep-alive\n\n")
                     self.wfile.flush()
                     continue
-                # what came meanwhile goes in the same write: a page costs the service a few
-                # wake-ups a second, not one per estimate
-                while True:
+                while True:  # a page that fell behind catches up in one write
                     try:
-                        batch.append(q.get_nowait())
+                        batches.append(q.get_nowait())
                     except queue.Empty:
                         break
-                self.wfile.write(b"".join(b"data: " + e.encode() + b"\n\n" for e in batch))
+                self.wfile.write(b"".join(batches))
                 self.wfile.flush()
-                time.sleep(BATCH_S)
         except (BrokenPipeError, ConnectionResetError, TimeoutError):
             pass  # the page went away
         finally:
@@ -306,14 +327,24 @@ class MapServer:
         self._thread = threading.Thread(
             target=self._httpd.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True
         )
+        self._pump = threading.Thread(target=self._pump_loop, name="map-feed", daemon=True)
 
     @property
     def url(self) -> str:
         host, port = self._httpd.server_address[:2]
         return f"http://{host}:{port}/"
 
+    def _pump_loop(self) -> None:
+        closing = self._httpd.closing
+        while not closing.wait(BATCH_S):
+            try:
+                self.feed.pump()
+            except Exception:  # a bug in the page's bookkeeping must not end the feed
+                log.exception("live map: a batch failed")
+
     def start(self) -> MapServer:
         self._thread.start()
+        self._pump.start()
         log.info("live map on %s", self.url)
         return self
 
@@ -322,3 +353,4 @@ class MapServer:
         self._httpd.shutdown()
         self._httpd.server_close()
         self._thread.join(timeout=2.0)
+        self._pump.join(timeout=2.0)

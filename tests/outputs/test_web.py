@@ -123,17 +123,41 @@ def test_events_reach_a_page_and_a_slow_page_loses_the_oldest(server: MapServer)
     try:
         assert b"200" in _read_until(s, b": connected")
         server.feed.add(record(0))
-        got = _read_until(s, b"}}\n\n")
-        ev = json.loads(got.split(b"data: ", 1)[1].split(b"\n\n")[0])
-        assert ev["key"] == "1/gimbal" and ev["record"]["t_boot_s"] == 100.0
+        got = _read_until(s, b"}}]\n\n")
+        batch = json.loads(got.split(b"data: ", 1)[1].split(b"\n\n")[0])
+        assert [ev["key"] for ev in batch] == ["1/gimbal"]
+        assert batch[0]["record"]["t_boot_s"] == 100.0
         recs = [record(i) for i in range(1, 2000)]
         t0 = time.perf_counter()
         for r in recs:  # the page reads nothing meanwhile: add never waits
             server.feed.add(r)
-        assert time.perf_counter() - t0 < 1.0
+        assert time.perf_counter() - t0 < 0.1
+        for r in recs:  # a batch each
+            server.feed.add(r)
+            server.feed.pump()
         assert server.feed.dropped >= 1500  # (what the socket buffers took was not dropped)
     finally:
         s.close()
+
+
+def test_a_batch_carries_the_latest_estimate_of_each_target() -> None:
+    """Ten estimates of one target and one of another between two batches: a page is sent two
+    events, the latest of each, while ``/state`` counts all eleven."""
+    from dataclasses import replace
+
+    feed = MapFeed()
+    q = feed.subscribe()
+    assert q is not None
+    for k in range(10):
+        feed.add(replace(record(0), t_boot_s=100.0 + 0.01 * k))
+    feed.add(record(0, target="other"))
+    feed.pump()
+    batch = json.loads(q.get_nowait().removeprefix(b"data: "))
+    assert {ev["key"]: ev["record"]["t_boot_s"] for ev in batch} == {
+        "1/gimbal": 100.09,
+        "1/other": 100.0,
+    }
+    assert q.empty() and feed.snapshot()["events"] == 11
 
 
 def test_too_many_pages_are_refused_and_a_closed_one_is_let_go(server: MapServer) -> None:

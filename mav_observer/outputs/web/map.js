@@ -14,6 +14,8 @@
   var pending = {};
   var waiting = {};
   var scheduled = false;
+  var lastApply = 0;
+  var countAt = 0;
   var latencies = [];
   var events = 0;
   var fitted = false;
@@ -25,10 +27,12 @@
   var TRACK_STEP_S = 1.0;
   var TRACK_POINTS = 600;
   var RING_POINTS = 32;
-  // a row's text is rewritten at most this often (its data attributes at every redraw), and
-  // a target is redrawn on the map only when it moved or its ellipse changed by a pixel:
-  // 100 targets at 10 Hz would otherwise keep a browser's core a third busy
+  // a row's text is rewritten at most every TEXT_MS (its data attributes at every batch), the
+  // map drawn at most every MAP_MS, a target on it only when it moved or its ellipse changed
+  // by a pixel: 100 targets at 10 Hz would otherwise keep a browser's core a third busy
   var TEXT_MS = 500;
+  var MAP_MS = 200;
+  var mapTimer = null, mapAt = 0, heldVehicles = {};
   var ppm = 1.0;  // screen pixels per metre at the map's zoom, set at each redraw
   var textTimer = null;
 
@@ -172,16 +176,55 @@
     if (tp && sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
   }
 
+  // a row's text held back is written once TEXT_MS has passed, should no newer estimate come
   function flushText() {
     textTimer = null;
     var now = Date.now();
     for (var k in targets) { if (targets[k].stale) { writeText(targets[k], targets[k].stale, now); } }
   }
 
+  // the live map is drawn at most every MAP_MS, all its changes at once: a canvas that changes
+  // costs a browser a copy of it at each frame, whatever changed on it
+  function scheduleMap() {
+    if (!mapTimer) { mapTimer = setTimeout(flushMap, Math.max(0, mapAt + MAP_MS - Date.now())); }
+  }
+
+  function flushMap() {
+    mapTimer = null;
+    mapAt = Date.now();
+    ppm = metrePixels();
+    for (var sysid in heldVehicles) {
+      var lv = heldVehicles[sysid];
+      showVehicle(sysid, lv.record.vehicle_pos_ned_m, lv.yaw_deg, null, lv.record.t_boot_s);
+    }
+    heldVehicles = {};
+    for (var k in targets) {
+      var t = targets[k], rec = t.held;
+      if (!rec) { continue; }
+      t.held = null;
+      var tp = rec.target_pos_ned_m, sd = rec.rel_pos_std_ned_m;
+      extend(t, t.hist, toLL(tp[0], tp[1]), rec.t_boot_s);
+      var sn = sd ? sd[0] : 0, se = sd ? sd[1] : 0, d = t.drawn;
+      if (d && ppm * Math.max(Math.abs(tp[0] - d[0]), Math.abs(tp[1] - d[1]),
+                              Math.abs(sn - d[2]), Math.abs(se - d[3])) < 1.0) {
+        continue;  // not a pixel's change on the map
+      }
+      drawTarget(t, tp, sd);
+    }
+  }
+
+  function drawTarget(t, tp, sd) {
+    t.drawn = [tp[0], tp[1], sd ? sd[0] : 0, sd ? sd[1] : 0];
+    t.marker.setLatLng(toLL(tp[0], tp[1]));
+    if (sd) {
+      t.e1.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 1));
+      t.e2.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 2));
+    }
+  }
+
   function showTarget(key, rec, history) {
     var t = target(key);
     var tp = rec.target_pos_ned_m;
-    var sd = rec.rel_pos_std_ned_m;
     var now = Date.now();
     t.row.setAttribute("data-status", rec.status);
     t.row.setAttribute("data-t", rec.t_boot_s);
@@ -191,23 +234,17 @@
     }
     if (history || rec.status !== t.status || !(now - t.textAt < TEXT_MS)) {
       writeText(t, rec, now);
-    } else {  // written when TEXT_MS has passed, should no newer estimate come
+    } else {
       t.stale = rec;
       if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
     }
     if (!tp) { return; }
-    if (history) { t.hist.setLatLngs(history.map(function (p) { return toLL(p[0], p[1]); })); }
-    else { extend(t, t.hist, toLL(tp[0], tp[1]), rec.t_boot_s); }
-    var sn = sd ? sd[0] : 0, se = sd ? sd[1] : 0, d = t.drawn;
-    if (!history && d && ppm * Math.max(Math.abs(tp[0] - d[0]), Math.abs(tp[1] - d[1]),
-                                        Math.abs(sn - d[2]), Math.abs(se - d[3])) < 1.0) {
-      return;  // not a pixel's change on the map
-    }
-    t.drawn = [tp[0], tp[1], sn, se];
-    t.marker.setLatLng(toLL(tp[0], tp[1]));
-    if (sd) {
-      t.e1.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 1));
-      t.e2.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 2));
+    if (!history) {  // live: drawn with the map's next frame
+      t.held = rec;
+      scheduleMap();
+    } else {
+      t.hist.setLatLngs(history.map(function (p) { return toLL(p[0], p[1]); }));
+      drawTarget(t, tp, rec.rel_pos_std_ned_m);
     }
     if (!fitted) {
       fitted = true;
@@ -224,8 +261,8 @@
   function apply() {
     scheduled = false;
     var now = Date.now();
-    ppm = metrePixels();
-    var latest = {};  // each vehicle drawn once a batch, where its latest estimate puts it
+    lastApply = now;
+    var latest = heldVehicles;  // each vehicle drawn where its latest estimate puts it
     for (var key in pending) {
       var ev = pending[key];
       var rec = ev.record;
@@ -234,10 +271,6 @@
       showTarget(key, rec, null);
       latencies.push(now - waiting[key]);  // published to shown, the oldest event of the batch
     }
-    for (var sysid in latest) {
-      var lv = latest[sysid];
-      showVehicle(sysid, lv.record.vehicle_pos_ned_m, lv.yaw_deg, null, lv.record.t_boot_s);
-    }
     pending = {};
     waiting = {};
     if (latencies.length > 500) { latencies = latencies.slice(-500); }
@@ -245,19 +278,29 @@
     var med = s.length ? s[Math.floor(s.length / 2)] : null;
     var el = document.getElementById("latency");
     el.setAttribute("data-median", med === null ? "" : med.toFixed(1));
-    el.textContent = "latency to this page: " + (med === null ? "-" : med.toFixed(0) + " ms (median)");
     var c = document.getElementById("count");
     c.setAttribute("data-events", events);
-    c.textContent = events + " events";
+    if (!(now - countAt < TEXT_MS)) {
+      countAt = now;
+      el.textContent = "latency to this page: " + (med === null ? "-" : med.toFixed(0) + " ms (median)");
+      c.textContent = events + " events";
+    }
   }
 
+  // a message is a batch: the latest estimate of each target that had one
   function onEvent(msg) {
-    var ev = JSON.parse(msg.data);
-    events += 1;
-    if (ev.origin) { setOrigin(ev.origin); }
-    if (!pending[ev.key]) { waiting[ev.key] = ev.sent_ms; }  // the oldest not yet shown
-    pending[ev.key] = ev;
-    if (!scheduled) { scheduled = true; setTimeout(apply, REDRAW_MS); }
+    var batch = JSON.parse(msg.data);
+    for (var i = 0; i < batch.length; i++) {
+      var ev = batch[i];
+      events += 1;
+      if (ev.origin) { setOrigin(ev.origin); }
+      if (!pending[ev.key]) { waiting[ev.key] = ev.sent_ms; }  // the oldest not yet shown
+      pending[ev.key] = ev;
+    }
+    if (!scheduled) {  // now, unless the last redraw was less than REDRAW_MS ago
+      scheduled = true;
+      setTimeout(apply, Math.max(0, lastApply + REDRAW_MS - Date.now()));
+    }
   }
 
   function live() {
