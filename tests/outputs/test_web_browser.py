@@ -103,6 +103,8 @@ def test_the_live_page_shows_what_the_service_published(browser: Any, tmp_path: 
         tp = published["target_pos_ned_m"]
         assert el.find_element("css selector", ".ne").text == f"{tp[0]:.2f}, {tp[1]:.2f}"
         assert el.find_element("css selector", ".age").text == f"t {published['t_boot_s']:.1f} s"
+        count = browser.find_element("id", "count")  # its text held back too, then written
+        assert count.text == f"{count.get_attribute('data-events')} events"
         median = float(browser.find_element("id", "latency").get_attribute("data-median"))
         assert median < 200.0  # published -> shown in the page's DOM, ms
         browser.save_screenshot(str(figures(tmp_path) / "live_map.png"))

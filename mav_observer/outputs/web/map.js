@@ -15,7 +15,7 @@
   var waiting = {};
   var scheduled = false;
   var lastApply = 0;
-  var countAt = 0;
+  var countAt = 0, countStale = false, latencyMedian = null;
   var latencies = [];
   var events = 0;
   var fitted = false;
@@ -176,11 +176,12 @@
     if (tp && sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
   }
 
-  // a row's text held back is written once TEXT_MS has passed, should no newer estimate come
+  // a row's text (or the page's counts) held back is written once TEXT_MS has passed, should no newer estimate come
   function flushText() {
     textTimer = null;
     var now = Date.now();
     for (var k in targets) { if (targets[k].stale) { writeText(targets[k], targets[k].stale, now); } }
+    if (countStale) { writeCounts(now); }
   }
 
   // the live map is drawn at most every MAP_MS, all its changes at once: a canvas that changes
@@ -275,16 +276,23 @@
     waiting = {};
     if (latencies.length > 500) { latencies = latencies.slice(-500); }
     var s = latencies.slice().sort(function (a, b) { return a - b; });
-    var med = s.length ? s[Math.floor(s.length / 2)] : null;
-    var el = document.getElementById("latency");
-    el.setAttribute("data-median", med === null ? "" : med.toFixed(1));
-    var c = document.getElementById("count");
-    c.setAttribute("data-events", events);
-    if (!(now - countAt < TEXT_MS)) {
-      countAt = now;
-      el.textContent = "latency to this page: " + (med === null ? "-" : med.toFixed(0) + " ms (median)");
-      c.textContent = events + " events";
+    latencyMedian = s.length ? s[Math.floor(s.length / 2)] : null;
+    document.getElementById("latency").setAttribute(
+      "data-median", latencyMedian === null ? "" : latencyMedian.toFixed(1));
+    document.getElementById("count").setAttribute("data-events", events);
+    if (!(now - countAt < TEXT_MS)) { writeCounts(now); }
+    else {
+      countStale = true;
+      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
     }
+  }
+
+  function writeCounts(now) {
+    countAt = now;
+    countStale = false;
+    document.getElementById("latency").textContent = "latency to this page: " +
+      (latencyMedian === null ? "-" : latencyMedian.toFixed(0) + " ms (median)");
+    document.getElementById("count").textContent = events + " events";
   }
 
   // a message is a batch: the latest estimate of each target that had one
