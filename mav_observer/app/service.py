@@ -286,6 +286,10 @@ class Service:
         tgt.estimates += 1
         tgt.last_record = rec
         tgt.last_estimate_mono = now
+        # the vehicle's attitude at the estimate's time, looked up once for the map and MAVLink
+        rpy = None
+        if self.web is not None or self.mavlink_out is not None:
+            rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
         if changed or now >= tgt.next_pub_mono:
             # a schedule rather than a minimum gap, so that the average is the configured
             # rate whatever the bearing rate (no catching up after a quiet spell)
@@ -296,12 +300,10 @@ class Service:
             tgt.published += 1
             text = rec.to_json()
             self.pub.estimate(view.sysid, rec.target, text)
-            if self.web is not None:  # the live map: a put, never a wait
-                rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
+            if self.web is not None:  # the live map: an append, never a wait
                 origin = self.tracker.origin(rec.sysid)
                 self.web.add(rec, None if rpy is None else rpy[2], origin, text)
         if self.mavlink_out is not None:
-            rpy = self.tracker.vehicle_attitude(rec.sysid, rec.t_boot_s)
             self.mavlink_out.on_estimate(rec, rpy, now)
 
     # -- housekeeping -------------------------------------------------------------------
