@@ -411,6 +411,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         service = Service.from_settings(settings, session)
         if web is not None:
             service.web = web.feed
+            follow_fused(session, z["prefix"], web.feed)
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: service.stop())
         logging.getLogger("mav_observer.app.service").info(
@@ -425,6 +426,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         if web is not None:
             web.close()
     return 0
+
+
+def follow_fused(session: Any, prefix: str, feed: Any) -> Any:
+    """Give the live map's ``feed`` every fused target ``mav-observer fuse`` publishes under
+    ``prefix`` (the subscriber; it ends with the session)."""
+
+    def on_fused(sample: Any) -> None:
+        feed.add_fused(sample.payload.to_bytes().decode("utf-8", "replace"))
+
+    return session.declare_subscriber(f"{prefix}/fused/*", on_fused)
 
 
 def web_server(listen: str | None, tiles: str | None) -> Any:

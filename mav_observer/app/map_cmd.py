@@ -1,9 +1,11 @@
 """``mav-observer map``: the live map on any machine that reaches the service over Zenoh.
 
 A Zenoh session (a peer connecting to the service's endpoint, no scouting) subscribes to the
-estimates ``PREFIX/*/*/estimate`` and feeds the page of :mod:`mav_observer.outputs.web`,
-served on ``--web HOST:PORT`` (loopback by default); the service itself then serves no page
-and spends nothing on one. What the page shows is what the service published.
+estimates ``PREFIX/*/*/estimate``, the statuses ``PREFIX/*/status`` (each vehicle's origin)
+and the fused targets ``PREFIX/fused/*`` (``mav-observer fuse``), and feeds the page of
+:mod:`mav_observer.outputs.web`, served on ``--web HOST:PORT`` (loopback by default); the
+service itself then serves no page and spends nothing on one. What the page shows is what the
+service (and ``fuse``) published.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ def add_parser(sub: Any) -> None:
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from mav_observer.app.cli import web_server, zenoh_client_session
+    from mav_observer.app.cli import follow_fused, web_server, zenoh_client_session
 
     web = web_server(args.web, args.web_tiles)
     if web is None:  # (--web has a default)
@@ -47,13 +49,21 @@ def cmd_map(args: argparse.Namespace) -> int:
         feed = web.feed
         sub = session.declare_subscriber(
             f"{args.prefix}/*/*/estimate",
-            lambda s: feed.add_published(s.payload.to_bytes().decode()),
+            lambda s: feed.add_published(s.payload.to_bytes().decode("utf-8", "replace")),
         )
-        print(f"live map on {web.url} (estimates of {args.prefix}/*/*/estimate)", flush=True)
+        fused = follow_fused(session, args.prefix, feed)
+        status = session.declare_subscriber(  # each vehicle's origin
+            f"{args.prefix}/*/status",
+            lambda s: feed.add_status(s.payload.to_bytes().decode("utf-8", "replace")),
+        )
+        print(f"live map on {web.url} (estimates of {args.prefix}/*/*/estimate, fused targets "
+              f"of {args.prefix}/fused/*)", flush=True)  # fmt: skip
         end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.is_set() and (end is None or time.monotonic() < end):
             stop.wait(0.2)
         sub.undeclare()
+        fused.undeclare()
+        status.undeclare()
     finally:
         session.close()
         web.close()

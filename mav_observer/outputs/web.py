@@ -13,8 +13,11 @@ never a wait, whatever the pages do, and nothing computed in the service's threa
   estimate of each target that had one, ``{"key", "yaw_deg", "sent_ms", "origin", "record"}``
   (``record`` as ``docs/schema.md``); a page too slow to keep up loses the oldest batches
   (it redraws from the latest), counted in ``/state``'s ``dropped``;
-* ``/vehicle/N``, ``/target/N/NAME``: one vehicle's or target's part of ``/state`` (404 for
-  one not seen).
+* ``/vehicle/N``, ``/target/N/NAME``, ``/fused/NAME``: one vehicle's, target's or fused
+  target's part of ``/state`` (404 for one not seen).
+
+Fused targets (``mav-observer fuse``'s records, ``PREFIX/fused/NAME``) come in through
+:meth:`MapFeed.add_fused`, as events keyed ``fused/NAME``.
 
 Loopback by default; another address is the user's explicit choice.
 """
@@ -49,6 +52,9 @@ QUEUE_LEN = 100
 BATCH_S = 0.2
 #: Estimates waiting for the feed's next batch, at most.
 INBOX_LEN = 100_000
+#: Inbox entries that are not a vehicle's estimate: a fused target's record (``add_fused``), a
+#: vehicle's status (``add_status``).
+_FUSED, _STATUS = object(), object()
 STATIC = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/map.js": ("map.js", "text/javascript; charset=utf-8"),
@@ -84,6 +90,7 @@ class MapFeed:
         self._inbox: deque[tuple[Any, ...]] = deque(maxlen=INBOX_LEN)
         self._vehicles: dict[int, dict[str, Any]] = {}
         self._targets: dict[str, dict[str, Any]] = {}
+        self._fused: dict[str, dict[str, Any]] = {}
         self._clients: list[queue.Queue[bytes]] = []
         self.max_clients = max_clients
         self.queue_len = queue_len
@@ -110,6 +117,17 @@ class MapFeed:
         ``mav-observer map``); one that is not such a record is counted in :attr:`bad`."""
         self._inbox.append((None, None, None, text, time.time()))
 
+    def add_fused(self, text: str) -> None:
+        """A fused target's record as ``mav-observer fuse`` published it (``docs/schema.md``);
+        one that is not such a record is counted in :attr:`bad`."""
+        self._inbox.append((_FUSED, None, None, text, time.time()))
+
+    def add_status(self, text: str) -> None:
+        """A vehicle's status as a service published it (``docs/schema.md``): its origin, for
+        ``mav-observer map`` (whose estimate records carry none); one that is not a status is
+        counted in :attr:`bad`."""
+        self._inbox.append((_STATUS, None, None, text, time.time()))
+
     def pump(self) -> None:
         """Take in what was added: the state, and to each page one batch of events, the
         latest estimate of each target that had one."""
@@ -117,7 +135,11 @@ class MapFeed:
             latest: dict[str, tuple[float | None, float, str, str]] = {}
             inbox = self._inbox
             while inbox:
-                taken = self._take(*inbox.popleft())
+                item = inbox.popleft()
+                if item[0] is _STATUS:
+                    self._take_status(item[3])
+                    continue
+                taken = self._take_fused(*item[3:]) if item[0] is _FUSED else self._take(*item)
                 if taken is not None:
                     latest[taken[0]] = taken[1:]
             clients = list(self._clients)
@@ -161,9 +183,7 @@ class MapFeed:
         veh = self._vehicles.get(sysid)
         if veh is None:
             veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
-        if origin is not None and veh.get("origin") is not origin and veh.get("origin") != origin:
-            veh["origin"] = origin
-            veh["origin_json"] = json.dumps(origin)
+        _set_origin(veh, origin)
         if vp is not None:
             veh["pos_ned_m"] = [float(v) for v in vp]
             veh["yaw_deg"] = yaw
@@ -179,6 +199,41 @@ class MapFeed:
         self.events += 1
         return key, yaw, sent_s * 1000.0, veh.get("origin_json", "null"), text
 
+    def _take_status(self, text: str) -> None:
+        """A vehicle's status into the state (under the lock): its origin, when known."""
+        try:
+            d = json.loads(text)
+            sysid, origin = int(d["sysid"]), d.get("origin")
+            if origin is not None:
+                float(origin["lat_deg"]), float(origin["lon_deg"])
+        except (ValueError, KeyError, TypeError):
+            self.bad += 1
+            return
+        veh = self._vehicles.get(sysid)
+        if veh is None:
+            veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
+        _set_origin(veh, origin)
+
+    def _take_fused(self, text: str, sent_s: float) -> tuple[str, None, float, str, str] | None:
+        """A fused target's record into the state (under the lock), as :meth:`_take`."""
+        try:
+            d = json.loads(text)
+            name, t_unix_s = str(d["target"]), float(d["t_unix_s"])
+            lat, lon, status = d.get("lat_deg"), d.get("lon_deg"), str(d["status"])
+        except (ValueError, KeyError, TypeError):
+            self.bad += 1
+            return None
+        if "NaN" in text or "Infinity" in text:  # the page's JSON.parse takes no NaN
+            text = json.dumps(_no_nan(d))
+        entry = self._fused.get(name)
+        if entry is None:
+            entry = self._fused[name] = {"history": deque(maxlen=TRACK_POINTS)}
+        entry["record_json"] = text
+        if lat is not None and lon is not None and _step_due(entry, t_unix_s):
+            entry["history"].append([float(lat), float(lon), status])
+        self.events += 1
+        return f"fused/{name}", None, sent_s * 1000.0, "null", text
+
     def snapshot(self) -> dict[str, Any]:
         self.pump()
         with self._lock:
@@ -193,6 +248,10 @@ class MapFeed:
                 "targets": {
                     k: {"record": json.loads(t["record_json"]), "history": list(t["history"])}
                     for k, t in self._targets.items()
+                },
+                "fused": {
+                    k: {"record": json.loads(f["record_json"]), "history": list(f["history"])}
+                    for k, f in self._fused.items()
                 },
                 "events": self.events,
                 "dropped": self.dropped,
@@ -212,6 +271,24 @@ class MapFeed:
         with self._lock:
             if q in self._clients:
                 self._clients.remove(q)
+
+
+def _set_origin(veh: dict[str, Any], origin: dict[str, Any] | None) -> None:
+    """A vehicle's origin in the page's state, and as JSON for its events, when it changed."""
+    if origin is not None and veh.get("origin") is not origin and veh.get("origin") != origin:
+        veh["origin"] = origin
+        veh["origin_json"] = json.dumps(origin)
+
+
+def _no_nan(v: Any) -> Any:
+    """``v`` with every non-finite number ``None`` (JSON's null)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _no_nan(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_no_nan(x) for x in v]
+    return v
 
 
 def _finite(v: Any) -> Any:
@@ -270,6 +347,10 @@ class _Handler(BaseHTTPRequestHandler):
             key = path[len("/target/") :]
             snap = feed.snapshot()["targets"].get(key)
             self._json(snap if snap is not None else {"error": "no such target"},
+                       200 if snap is not None else 404)  # fmt: skip
+        elif path.startswith("/fused/"):
+            snap = feed.snapshot()["fused"].get(path[len("/fused/") :])
+            self._json(snap if snap is not None else {"error": "no such fused target"},
                        200 if snap is not None else 404)  # fmt: skip
         else:
             self._json({"error": f"no page {path}"}, 404)

@@ -184,3 +184,53 @@ def test_a_published_record_feeds_the_page_and_garbage_is_counted() -> None:
     assert st["events"] == 1 and feed.bad == 2
     assert st["targets"]["1/gimbal"]["record"]["t_boot_s"] == 103.0
     assert st["vehicles"]["1"]["pos_ned_m"] == [3.0, 0.0, -10.0]
+
+
+def fused_json(t_unix_s: float, name: str = "mast", range_m: float = 30.0) -> str:
+    from mav_observer.fleet.fusion import FusedEstimate
+
+    est = FusedEstimate(name, "converged", 12, t_unix_s, (-35.36, 149.16, 584.0), (5.0, 6.0, 0.5),
+                        ((0.04, 0.01, 0.0), (0.01, 0.09, 0.0), (0.0, 0.0, 0.01)),
+                        (-35.35995, 149.16007, 583.5), range_m, ())  # fmt: skip
+    return json.dumps(est.to_dict())
+
+
+def test_a_fused_target_feeds_the_page_state_and_events(server: MapServer) -> None:
+    """``mav-observer fuse``'s records: in ``/state`` and ``/fused/NAME`` with a point of
+    history a second, sent to pages as ``fused/NAME``; a NaN the page could not parse is
+    null, and a text that is not a fused record is counted."""
+    feed = server.feed
+    q = feed.subscribe()
+    assert q is not None
+    for k in range(5):
+        feed.add_fused(fused_json(1.7e9 + 0.5 * k, range_m=float("nan") if k == 4 else 30.0))
+    feed.add_fused('{"target": "x"}')
+    feed.pump()
+    batch = json.loads(q.get_nowait().removeprefix(b"data: "))
+    assert [ev["key"] for ev in batch] == ["fused/mast"]
+    assert batch[0]["record"]["range_m"] is None and batch[0]["record"]["rays"] == 12
+    st = feed.snapshot()
+    assert feed.bad == 1 and st["events"] == 5
+    hist = st["fused"]["mast"]["history"]
+    assert [h[:2] for h in hist] == [[-35.35995, 149.16007]] * 3  # t = 0, 1, 2 s
+    code, body = get(server.url + "fused/mast")
+    assert code == 200 and json.loads(body)["record"]["status"] == "converged"
+    assert get(server.url + "fused/none")[0] == 404
+    feed.unsubscribe(q)
+
+
+def test_a_status_gives_a_vehicle_its_origin_for_the_map_command() -> None:
+    """``mav-observer map`` gets the estimate records without an origin: a vehicle's status
+    carries it to ``/state`` and to the vehicle's next events; garbage is counted."""
+    feed = MapFeed()
+    q = feed.subscribe()
+    assert q is not None
+    origin = {"lat_deg": -35.36, "lon_deg": 149.16, "alt_m": 584.0, "source": "HOME_POSITION",
+              "frame": "ardupilot"}  # fmt: skip
+    feed.add_status(json.dumps({"schema": 1, "sysid": 2, "origin": origin}))
+    feed.add_status('{"sysid": 2, "origin": {"lat_deg": "north"}}')
+    feed.add_published(record(0, sysid=2).to_json())
+    feed.pump()
+    (ev,) = json.loads(q.get_nowait().removeprefix(b"data: "))
+    assert ev["key"] == "2/gimbal" and ev["origin"] == origin
+    assert feed.snapshot()["vehicles"]["2"]["origin"] == origin and feed.bad == 1

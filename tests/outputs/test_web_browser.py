@@ -8,6 +8,7 @@ skip on a developer's machine and fail under CI."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -134,3 +135,82 @@ def test_the_replay_report_opens_from_disk(browser: Any, tmp_path: Path) -> None
     assert float(el.get_attribute("data-n")) == pytest.approx(final.target_pos_ned_m[0], abs=0.01)
     assert opened_s < 5.0
     browser.save_screenshot(str(figures(tmp_path) / "replay_report.png"))
+
+
+def test_a_fleet_on_one_map_each_vehicle_from_its_origin_and_a_fused_target(
+    browser: Any, tmp_path: Path
+) -> None:
+    """Three vehicles see one target from local frames whose origins lie up to 120 m apart
+    (the third's origin known only from its published records, as ``mav-observer map`` gets
+    them), and ``fuse`` publishes the target: the page draws all four at one place."""
+    import numpy as np
+
+    from mav_observer.core.samples import Estimate, Status
+    from mav_observer.fleet.fusion import FusedEstimate
+    from mav_observer.geo.geodesy import Origin, to_geodetic
+    from mav_observer.outputs.records import EstimateRecord
+    from mav_observer.outputs.web import MapFeed, MapServer
+
+    lat0, lon0 = -35.36, 149.16
+    o1 = Origin(lat0, lon0, 584.0, "GPS_GLOBAL_ORIGIN")
+    offsets = {1: (0.0, 0.0), 2: (100.0, 50.0), 3: (-80.0, 90.0)}  # m, north and east of o1
+    origins = {
+        v: Origin(*to_geodetic(o1, (dn, de, 0.0))[:2], 584.0, "GPS_GLOBAL_ORIGIN")
+        for v, (dn, de) in offsets.items()
+    }
+
+    def rec(sysid: int, t: float) -> EstimateRecord:
+        o_n, o_e = offsets[sysid]
+        vp = (10.0 - o_n, -5.0 - o_e, -20.0)  # every vehicle at (10, -5) from o1
+        est = Estimate(
+            t_s=t, x_m=np.array([30.0, 35.0, 20.0]), a_mps=np.zeros(3), range_m=50.0,
+            excitation=0.1, cond_m=3.0, status=Status.CONVERGED, corrected=True,
+            bearing_age_s=0.0, velocity_age_s=0.0, correction_rel=0.0,
+            x_std_m=np.array([0.5, 0.4, 0.3]), a_std_mps=np.array([0.01] * 3), range_std_m=0.2,
+            nis=1.0,
+        )  # fmt: skip
+        return EstimateRecord(1.7e9 + t, t, sysid, "gimbal", "GIMBAL_DEVICE_ATTITUDE_STATUS",
+                              est, vp, origins[sysid])  # fmt: skip
+
+    feed = MapFeed()
+    srv = MapServer(feed).start()
+    try:
+        feed.add(rec(1, 100.0), None, o1.to_dict())  # in /state when the page loads
+        browser.get(srv.url)
+        assert wait_for(lambda: browser.find_elements("css selector", 'tr[data-key="1/gimbal"]'),
+                        20.0)  # fmt: skip
+        geo = rec(1, 101.0).target_geodetic()
+        assert geo is not None
+        fused = FusedEstimate("mast", "converged", 40, 1.7e9 + 101.0, (lat0, lon0, 584.0),
+                              (40.0, 30.0, 0.0), ((0.09, 0.03, 0.0), (0.03, 0.04, 0.0),
+                                                  (0.0, 0.0, 0.01)), geo[:3], 50.0, ())  # fmt: skip
+        for t in (101.0, 102.0):  # by events, after the page loaded
+            feed.add(rec(2, t), None, origins[2].to_dict())
+            feed.add_published(rec(3, t).to_json())
+        feed.add_fused(json.dumps(fused.to_dict()))
+        keys = ("1/gimbal", "2/gimbal", "3/gimbal", "fused/mast")
+
+        def drawn() -> dict[str, list[float]] | None:
+            out = {}
+            for k in keys:
+                els = browser.find_elements("css selector", f'tr[data-key="{k}"][data-map-ne]')
+                if not els:
+                    return None
+                out[k] = [float(x) for x in els[0].get_attribute("data-map-ne").split(",")]
+            return out
+
+        assert wait_for(drawn, 20.0)
+        where = drawn()
+        assert where is not None
+        for k in keys:  # the target at (40, 30) from the first origin, to a centimetre
+            assert where[k] == pytest.approx([40.0, 30.0], abs=0.01), (k, where)
+        ne = browser.find_element("css selector", 'tr[data-key="3/gimbal"] .ne')
+        assert wait_for(lambda: ne.text == "40.00, 30.00", 5.0), ne.text  # from the map's origin
+        row = browser.find_element("css selector", 'tr[data-key="fused/mast"]')
+        assert row.get_attribute("data-status") == "converged" and row.get_attribute(
+            "data-rays") == "40"  # fmt: skip
+        st = http_json(srv.url + "state")
+        assert st is not None and st["fused"]["mast"]["record"]["rays"] == 40
+        browser.save_screenshot(str(tmp_path / "fleet_map.png"))
+    finally:
+        srv.close()

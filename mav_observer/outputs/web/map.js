@@ -1,16 +1,22 @@
 // The live map and the replay report: the estimates of mav-observer on a Leaflet map, in the
 // local NED frame (a metric grid, offline) or on a tile layer when one is set and the origin
 // is known. Live: /state then /events (server-sent events). Report: window.REPORT and a slider.
+// Each vehicle's local frame has its own origin: the first origin known is the map's, and a
+// vehicle's positions are drawn shifted by its origin's offset from it (a fleet on one map).
 (function () {
   "use strict";
   var CFG = window.MAP_CONFIG || {};
   var REPORT = window.REPORT || null;
-  var R_EARTH = 6378137.0;
+  var R_EARTH = 6378137.0, E2 = 6.69437999014e-3;  // WGS84
   var origin = null;
   var mode = "local";
   var map, gridLayer;
   var vehicles = {};
   var targets = {};
+  var fused = {};
+  var origins = {}, shifts = {};  // a vehicle's origin, its offset (m, north and east) on the map
+  var refSysid = null;  // the vehicle whose origin was known first: the local map's frame is its
+  var MOVE_M = 0.05;  // an origin that moved less than this (an average refined) moves nothing
   var pending = {};
   var waiting = {};
   var scheduled = false;
@@ -37,12 +43,15 @@
   var textTimer = null;
 
   function toLL(n, e) {
-    if (mode === "tiles") {
-      var lat0 = origin.lat * Math.PI / 180;
-      return [origin.lat + n / R_EARTH * 180 / Math.PI,
-              origin.lon + e / (R_EARTH * Math.cos(lat0)) * 180 / Math.PI];
-    }
+    if (mode === "tiles") { return [origin.lat + n / origin.kn, origin.lon + e / origin.ke]; }
     return [n, e];
+  }
+
+  // metres per degree of latitude and of longitude at a latitude, on the WGS84 ellipsoid
+  function metresPerDeg(latDeg) {
+    var s = Math.sin(latDeg * Math.PI / 180), w = 1 - E2 * s * s;
+    return [R_EARTH * (1 - E2) / Math.pow(w, 1.5) * Math.PI / 180,
+            R_EARTH / Math.sqrt(w) * Math.cos(latDeg * Math.PI / 180) * Math.PI / 180];
   }
 
   function ring(n, e, sn, se, k) {
@@ -80,12 +89,16 @@
     for (var n = Math.floor(b.getSouth() / s) * s; n <= b.getNorth(); n += s) {
       L.polyline([[n, b.getWest()], [n, b.getEast()]],
                  {color: n === 0 ? "#999" : "#ddd", weight: 1, interactive: false}).addTo(gridLayer);
-      L.marker([n, b.getWest()], {icon: L.divIcon({className: "grid-label", html: "N " + n + " m"}),
+      L.marker([n, b.getWest()], {icon: L.divIcon({className: "grid-label", html: "N " + n + " m",
+                                                    iconSize: [80, 12], iconAnchor: [-3, 12]}),
                                   interactive: false}).addTo(gridLayer);
     }
     for (var e = Math.floor(b.getWest() / s) * s; e <= b.getEast(); e += s) {
       L.polyline([[b.getSouth(), e], [b.getNorth(), e]],
                  {color: e === 0 ? "#999" : "#ddd", weight: 1, interactive: false}).addTo(gridLayer);
+      L.marker([b.getSouth(), e], {icon: L.divIcon({className: "grid-label", html: "E " + e + " m",
+                                                     iconSize: [80, 12], iconAnchor: [-3, 14]}),
+                                   interactive: false}).addTo(gridLayer);
     }
   }
 
@@ -108,12 +121,90 @@
 
   function setOrigin(o) {
     if (!o || origin) { return; }
-    origin = {lat: o.lat_deg, lon: o.lon_deg, alt: o.alt_m};
+    var k = metresPerDeg(o.lat_deg);
+    origin = {lat: o.lat_deg, lon: o.lon_deg, alt: o.alt_m, kn: k[0], ke: k[1]};
     var el = document.getElementById("origin");
     if (el) {
       el.textContent = "origin: " + origin.lat.toFixed(7) + ", " + origin.lon.toFixed(7) +
-        (o.source ? " (" + o.source + ")" : "") + "; north up, metres in the local frame";
+        (o.source ? " (" + o.source + ")" : "") + "; north up, metres from this origin";
     }
+  }
+
+  // north and east (m) of a latitude and longitude from the map's origin (the plane tangent at
+  // the origin: a few centimetres off a kilometre away)
+  function geoNE(lat, lon) { return [(lat - origin.lat) * origin.kn, (lon - origin.lon) * origin.ke]; }
+
+  // a vehicle's origin: the service's, else the one its estimates imply (a record's target on
+  // WGS84 and in the local frame: ``mav-observer map`` gets no origin)
+  function noteOrigin(sysid, o, rec) {
+    if (!o && !origins[sysid] && rec && rec.target_lat_deg != null && rec.target_pos_ned_m) {
+      var tp = rec.target_pos_ned_m, k = metresPerDeg(rec.target_lat_deg);
+      o = {lat_deg: rec.target_lat_deg - tp[0] / k[0], lon_deg: rec.target_lon_deg - tp[1] / k[1],
+           alt_m: null, source: "its estimates"};
+    }
+    if (!o || o.lat_deg == null) { return; }
+    sysid = String(sysid);
+    var had = origins[sysid];
+    if (had && had.lat === o.lat_deg && had.lon === o.lon_deg) { return; }
+    if (!origin) { setOrigin(o); refSysid = sysid; }
+    if (sysid === refSysid && mode !== "tiles") {
+      // the local map's frame is this vehicle's: the map's origin follows its origin
+      var d = geoNE(o.lat_deg, o.lon_deg);
+      if (had && Math.abs(d[0]) < MOVE_M && Math.abs(d[1]) < MOVE_M) { return; }
+      origins[sysid] = {lat: o.lat_deg, lon: o.lon_deg};
+      if (had) { moveOrigin(o, d); }
+      return;
+    }
+    var before = shiftOf(sysid), after = geoNE(o.lat_deg, o.lon_deg);
+    if (had && Math.abs(after[0] - before[0]) < MOVE_M && Math.abs(after[1] - before[1]) < MOVE_M) { return; }
+    origins[sysid] = {lat: o.lat_deg, lon: o.lon_deg};
+    shifts[sysid] = after;
+    if (map) { moveVehicle(sysid, after[0] - before[0], after[1] - before[1]); }
+  }
+
+  // the reference vehicle's origin moved by ``d`` (m): the others and the fused targets, placed
+  // from it, move the other way
+  function moveOrigin(o, d) {
+    origin = null;
+    setOrigin(o);
+    for (var v in shifts) {
+      if (v === refSysid) { continue; }
+      shifts[v] = [shifts[v][0] - d[0], shifts[v][1] - d[1]];
+      if (map) { moveVehicle(v, -d[0], -d[1]); }
+    }
+    for (var name in fused) {
+      var ly = fused[name].layers;
+      if (ly && map) { moveLayers([ly.hist, ly.e1, ly.e2, ly.marker], -d[0], -d[1]); }
+    }
+  }
+
+  function shiftOf(sysid) { return shifts[sysid] || [0, 0]; }
+
+  // a vehicle's local north and east on the map
+  function vLL(sysid, n, e) {
+    var s = shifts[sysid];
+    return s ? toLL(n + s[0], e + s[1]) : toLL(n, e);
+  }
+
+  // what a vehicle drew before its origin was known (or before it moved) moves with it
+  function moveVehicle(sysid, dn, de) {
+    var v = vehicles[sysid], layers = v ? [v.track, v.marker, v.heading] : [];
+    for (var k in targets) {
+      var t = targets[k];
+      if (t.sysid === String(sysid)) { layers.push(t.hist, t.e1, t.e2, t.marker); t.drawn = null; }
+    }
+    moveLayers(layers, dn, de);
+  }
+
+  function moveLayers(layers, dn, de) {
+    if (!dn && !de) { return; }
+    var f = mode === "tiles" ? [1 / origin.kn, 1 / origin.ke] : [1, 1];
+    function mv(p) { return L.latLng(p.lat + dn * f[0], p.lng + de * f[1]); }
+    layers.forEach(function (ly) {
+      if (!ly.getLatLngs) { ly.setLatLng(mv(ly.getLatLng())); return; }
+      var pts = ly.getLatLngs();
+      ly.setLatLngs((pts.length && Array.isArray(pts[0]) ? pts[0] : pts).map(mv));
+    });
   }
 
   function vehicle(sysid) {
@@ -137,29 +228,33 @@
         e2: L.polygon([], {color: "#cf222e", weight: 1, fillOpacity: 0.08}).addTo(map),
         e1: L.polygon([], {color: "#cf222e", weight: 2, fillOpacity: 0.15}).addTo(map),
         marker: L.circleMarker([0, 0], {radius: 5, color: "#cf222e", fillOpacity: 1}).addTo(map),
-        row: null
+        row: addRow(key, key), sysid: key.split("/")[0]
       };
       t.marker.bindTooltip(key);
-      var tr = document.createElement("tr");
-      tr.setAttribute("data-key", key);
-      tr.innerHTML = "<td>" + key + "</td><td class='st'></td><td class='rg'></td>" +
-        "<td class='ne'></td><td class='sd'></td><td class='age muted'></td>";
-      document.querySelector("#targets tbody").appendChild(tr);
-      t.row = tr;
     }
     return t;
+  }
+
+  function addRow(key, label) {
+    var tr = document.createElement("tr");
+    tr.setAttribute("data-key", key);
+    tr.innerHTML = "<td></td><td class='st'></td><td class='rg'></td>" +
+      "<td class='ne'></td><td class='sd'></td><td class='age muted'></td>";
+    tr.firstChild.textContent = label;
+    document.querySelector("#targets tbody").appendChild(tr);
+    return tr;
   }
 
   function showVehicle(sysid, pos, yawDeg, track, t) {
     var v = vehicle(sysid);
     if (!pos) { return; }
-    v.marker.setLatLng(toLL(pos[0], pos[1]));
-    if (track) { v.track.setLatLngs(track.map(function (p) { return toLL(p[0], p[1]); })); }
-    else { extend(v, v.track, toLL(pos[0], pos[1]), t); }
+    v.marker.setLatLng(vLL(sysid, pos[0], pos[1]));
+    if (track) { v.track.setLatLngs(track.map(function (p) { return vLL(sysid, p[0], p[1]); })); }
+    else { extend(v, v.track, vLL(sysid, pos[0], pos[1]), t); }
     if (yawDeg !== null && yawDeg !== undefined) {
       var y = yawDeg * Math.PI / 180, len = 5;
-      v.heading.setLatLngs([toLL(pos[0], pos[1]),
-                            toLL(pos[0] + len * Math.cos(y), pos[1] + len * Math.sin(y))]);
+      v.heading.setLatLngs([vLL(sysid, pos[0], pos[1]),
+                            vLL(sysid, pos[0] + len * Math.cos(y), pos[1] + len * Math.sin(y))]);
     }
   }
 
@@ -169,10 +264,13 @@
     t.status = rec.status;
     t.stale = null;
     t.row.querySelector(".st").textContent = rec.status;
-    t.row.querySelector(".st").className = "st " + rec.status;
+    t.row.querySelector(".st").className = "st " + String(rec.status).replace(/ /g, "_");
     t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
     t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
-    if (tp) { t.row.querySelector(".ne").textContent = tp[0].toFixed(2) + ", " + tp[1].toFixed(2); }
+    if (tp) {  // from the map's origin: every vehicle's targets comparable
+      var sh = shiftOf(t.sysid);
+      t.row.querySelector(".ne").textContent = (tp[0] + sh[0]).toFixed(2) + ", " + (tp[1] + sh[1]).toFixed(2);
+    }
     if (tp && sd) { t.row.querySelector(".sd").textContent = sd[0].toFixed(2) + ", " + sd[1].toFixed(2); }
   }
 
@@ -181,6 +279,7 @@
     textTimer = null;
     var now = Date.now();
     for (var k in targets) { if (targets[k].stale) { writeText(targets[k], targets[k].stale, now); } }
+    for (var name in fused) { if (fused[name].stale) { writeFusedText(fused[name], fused[name].stale, now); } }
     if (countStale) { writeCounts(now); }
   }
 
@@ -204,7 +303,7 @@
       if (!rec) { continue; }
       t.held = null;
       var tp = rec.target_pos_ned_m, sd = rec.rel_pos_std_ned_m;
-      extend(t, t.hist, toLL(tp[0], tp[1]), rec.t_boot_s);
+      extend(t, t.hist, vLL(t.sysid, tp[0], tp[1]), rec.t_boot_s);
       var sn = sd ? sd[0] : 0, se = sd ? sd[1] : 0, d = t.drawn;
       if (d && ppm * Math.max(Math.abs(tp[0] - d[0]), Math.abs(tp[1] - d[1]),
                               Math.abs(sn - d[2]), Math.abs(se - d[3])) < 1.0) {
@@ -212,15 +311,102 @@
       }
       drawTarget(t, tp, sd);
     }
+    for (var name in fused) {
+      var f = fused[name];
+      if (f.held) { drawFused(f, f.held, null); f.held = null; }
+    }
   }
 
   function drawTarget(t, tp, sd) {
     t.drawn = [tp[0], tp[1], sd ? sd[0] : 0, sd ? sd[1] : 0];
-    t.marker.setLatLng(toLL(tp[0], tp[1]));
+    var s = shiftOf(t.sysid), n = tp[0] + s[0], e = tp[1] + s[1];
+    t.row.setAttribute("data-map-ne", n.toFixed(3) + "," + e.toFixed(3));
+    t.marker.setLatLng(toLL(n, e));
     if (sd) {
-      t.e1.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 1));
-      t.e2.setLatLngs(ring(tp[0], tp[1], sd[0], sd[1], 2));
+      t.e1.setLatLngs(ring(n, e, sd[0], sd[1], 1));
+      t.e2.setLatLngs(ring(n, e, sd[0], sd[1], 2));
     }
+  }
+
+  // an ellipse of k sigma from a north-east covariance (m^2), its axes where they point
+  function covRing(n, e, cnn, cne, cee, k) {
+    var th = 0.5 * Math.atan2(2 * cne, cnn - cee), m = (cnn + cee) / 2;
+    var r = Math.sqrt(Math.max(0, (cnn - cee) * (cnn - cee) / 4 + cne * cne));
+    var a = Math.sqrt(Math.max(0, m + r)), b = Math.sqrt(Math.max(0, m - r)), pts = [];
+    for (var i = 0; i < RING_POINTS; i++) {
+      var u = k * a * Math.cos(2 * Math.PI * i / RING_POINTS), w = k * b * Math.sin(2 * Math.PI * i / RING_POINTS);
+      pts.push(toLL(n + u * Math.cos(th) - w * Math.sin(th), e + u * Math.sin(th) + w * Math.cos(th)));
+    }
+    return pts;
+  }
+
+  // a target several vehicles see, fused (``mav-observer fuse``): on WGS84, so on the map once
+  // the map's origin is known
+  function fusedEntry(name) {
+    var f = fused[name];
+    if (!f) {
+      f = fused[name] = {row: addRow("fused/" + name, "fused: " + name), layers: null};
+    }
+    return f;
+  }
+
+  function drawFused(f, rec, history) {
+    if (rec.lat_deg == null || !origin) { return; }
+    if (!f.layers) {
+      f.layers = {
+        hist: L.polyline([], {color: "#1a7f37", weight: 1, opacity: 0.7}).addTo(map),
+        e2: L.polygon([], {color: "#1a7f37", weight: 1, fillOpacity: 0.08}).addTo(map),
+        e1: L.polygon([], {color: "#1a7f37", weight: 2, fillOpacity: 0.15}).addTo(map),
+        marker: L.circleMarker([0, 0], {radius: 7, color: "#1a7f37", fillOpacity: 1}).addTo(map)
+      };
+      f.layers.marker.bindTooltip(f.row.firstChild.textContent);
+    }
+    var ly = f.layers, ne = geoNE(rec.lat_deg, rec.lon_deg), c = rec.cov_ned_m2;
+    f.row.setAttribute("data-map-ne", ne[0].toFixed(3) + "," + ne[1].toFixed(3));
+    if (history) {
+      ly.hist.setLatLngs(history.map(function (p) { var q = geoNE(p[0], p[1]); return toLL(q[0], q[1]); }));
+    } else { extend(f, ly.hist, toLL(ne[0], ne[1]), rec.t_unix_s); }
+    ly.marker.setLatLng(toLL(ne[0], ne[1]));
+    if (c) {
+      ly.e1.setLatLngs(covRing(ne[0], ne[1], c[0][0], c[0][1], c[1][1], 1));
+      ly.e2.setLatLngs(covRing(ne[0], ne[1], c[0][0], c[0][1], c[1][1], 2));
+    }
+    if (!fitted) {
+      fitted = true;
+      map.fitBounds(L.latLngBounds([toLL(ne[0] - 50, ne[1] - 50), toLL(ne[0] + 50, ne[1] + 50)]));
+    }
+  }
+
+  function showFused(name, rec, history) {
+    var f = fusedEntry(name), now = Date.now();
+    f.row.setAttribute("data-status", rec.status);
+    f.row.setAttribute("data-t", rec.t_unix_s);
+    f.row.setAttribute("data-rays", rec.rays);
+    if (rec.lat_deg != null) {
+      f.row.setAttribute("data-lat", rec.lat_deg);
+      f.row.setAttribute("data-lon", rec.lon_deg);
+    }
+    if (history || rec.status !== f.status || !(now - f.textAt < TEXT_MS)) { writeFusedText(f, rec, now); }
+    else {
+      f.stale = rec;
+      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
+    }
+    if (history) { drawFused(f, rec, history); }
+    else { f.held = rec; scheduleMap(); }
+  }
+
+  function writeFusedText(f, rec, now) {
+    var sd = rec.pos_std_ned_m, ne = origin && rec.lat_deg != null ? geoNE(rec.lat_deg, rec.lon_deg) : null;
+    f.textAt = now;
+    f.status = rec.status;
+    f.stale = null;
+    f.row.querySelector(".st").textContent = rec.status;
+    f.row.querySelector(".st").className = "st " + String(rec.status).replace(/ /g, "_");
+    f.row.querySelector(".rg").textContent = rec.range_m == null ? "-" : rec.range_m.toFixed(2) + " m";
+    f.row.querySelector(".ne").textContent = ne ? ne[0].toFixed(2) + ", " + ne[1].toFixed(2) :
+      (rec.lat_deg == null ? "-" : "no origin");
+    f.row.querySelector(".sd").textContent = sd ? sd[0].toFixed(2) + ", " + sd[1].toFixed(2) : "-";
+    f.row.querySelector(".age").textContent = rec.rays + " rays";
   }
 
   function showTarget(key, rec, history) {
@@ -244,13 +430,13 @@
       t.held = rec;
       scheduleMap();
     } else {
-      t.hist.setLatLngs(history.map(function (p) { return toLL(p[0], p[1]); }));
+      t.hist.setLatLngs(history.map(function (p) { return vLL(t.sysid, p[0], p[1]); }));
       drawTarget(t, tp, rec.rel_pos_std_ned_m);
     }
     if (!fitted) {
       fitted = true;
       var vp = rec.vehicle_pos_ned_m || tp;
-      map.fitBounds(L.latLngBounds([toLL(tp[0], tp[1]), toLL(vp[0], vp[1])]).pad(1.0));
+      map.fitBounds(L.latLngBounds([vLL(t.sysid, tp[0], tp[1]), vLL(t.sysid, vp[0], vp[1])]).pad(1.0));
     }
   }
 
@@ -267,10 +453,11 @@
     for (var key in pending) {
       var ev = pending[key];
       var rec = ev.record;
+      latencies.push(now - waiting[key]);  // published to shown, the oldest event of the batch
+      if (key.lastIndexOf("fused/", 0) === 0) { showFused(key.slice(6), rec, null); continue; }
       var last = latest[rec.sysid];
       if (!last || rec.t_boot_s >= last.record.t_boot_s) { latest[rec.sysid] = ev; }
       showTarget(key, rec, null);
-      latencies.push(now - waiting[key]);  // published to shown, the oldest event of the batch
     }
     pending = {};
     waiting = {};
@@ -301,7 +488,7 @@
     for (var i = 0; i < batch.length; i++) {
       var ev = batch[i];
       events += 1;
-      if (ev.origin) { setOrigin(ev.origin); }
+      if (ev.key.lastIndexOf("fused/", 0) !== 0) { noteOrigin(ev.record.sysid, ev.origin, ev.record); }
       if (!pending[ev.key]) { waiting[ev.key] = ev.sent_ms; }  // the oldest not yet shown
       pending[ev.key] = ev;
     }
@@ -313,13 +500,15 @@
 
   function live() {
     fetch("/state").then(function (r) { return r.json(); }).then(function (st) {
-      for (var s in st.vehicles) { if (st.vehicles[s].origin) { setOrigin(st.vehicles[s].origin); } }
+      for (var s in st.vehicles) { noteOrigin(s, st.vehicles[s].origin, null); }
+      for (var k in st.targets) { var r = st.targets[k].record; noteOrigin(String(r.sysid), null, r); }
       init();
       for (var sysid in st.vehicles) {
         var v = st.vehicles[sysid];
         showVehicle(sysid, v.pos_ned_m, v.yaw_deg, v.track);
       }
       for (var key in st.targets) { showTarget(key, st.targets[key].record, st.targets[key].history); }
+      for (var name in st.fused || {}) { showFused(name, st.fused[name].record, st.fused[name].history); }
       var es = new EventSource("/events");
       es.onopen = function () { document.getElementById("conn").textContent = "live"; };
       es.onerror = function () { document.getElementById("conn").textContent = "reconnecting"; };
@@ -337,7 +526,7 @@
   }
 
   function report() {
-    for (var s in REPORT.vehicles) { if (REPORT.vehicles[s].origin) { setOrigin(REPORT.vehicles[s].origin); } }
+    for (var s in REPORT.vehicles) { noteOrigin(s, REPORT.vehicles[s].origin, null); }
     init();
     var slider = document.getElementById("slider");
     var label = document.getElementById("t");
@@ -345,7 +534,7 @@
     slider.value = REPORT.t1;
     for (var sysid in REPORT.vehicles) {
       var tr = REPORT.vehicles[sysid].track;
-      L.polyline(tr.map(function (p) { return toLL(p[1], p[2]); }),
+      L.polyline(tr.map(function (p) { return vLL(sysid, p[1], p[2]); }),
                  {color: "#0969da", weight: 1, opacity: 0.3}).addTo(map);
     }
     function at(t) {
@@ -365,11 +554,11 @@
     }
     var pts = [];
     for (var sv in REPORT.vehicles) {
-      REPORT.vehicles[sv].track.forEach(function (p) { pts.push(toLL(p[1], p[2])); });
+      REPORT.vehicles[sv].track.forEach(function (p) { pts.push(vLL(sv, p[1], p[2])); });
     }
     for (var k in REPORT.targets) {
       var ser = REPORT.targets[k].series;
-      if (ser.length) { pts.push(toLL(ser[ser.length - 1][1], ser[ser.length - 1][2])); }
+      if (ser.length) { pts.push(vLL(k.split("/")[0], ser[ser.length - 1][1], ser[ser.length - 1][2])); }
     }
     if (pts.length) { map.fitBounds(L.latLngBounds(pts).pad(0.1)); fitted = true; }
     slider.addEventListener("input", function () { at(parseFloat(slider.value)); });
