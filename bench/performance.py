@@ -134,17 +134,19 @@ def table(res: dict[str, dict]) -> str:
         row("10 vehicles x 10 targets at 10 Hz with the live map open in headless Chromium "
             "(on the same 2 cores): the service's latency, a bearing sent to its estimate "
             "received, over the same run without the page (median of pairs); ATTITUDE at 20 Hz "
-            "(each LANDING_TARGET waits for the attitude after it), and at 100 Hz",
-            f"20 Hz: p50 {tt['p50_ratio']:.2f}x, p99 {tt['p99_ratio']:.2f}x (without: "
-            f"{tt['p50_ms']:.1f} / {tt['p99_ms']:.1f} ms); 100 Hz: p50 "
-            f"{sharp['p50_ratio']:.2f}x, p99 {sharp['p99_ratio']:.2f}x (without: "
-            f"{sharp['p50_ms']:.1f} / {sharp['p99_ms']:.1f} ms)", "<= 1.1x",
-            max(tt["p50_ratio"], tt["p99_ratio"], sharp["p50_ratio"], sharp["p99_ratio"]) <= 1.1,
+            "(PX4's default on a telemetry link is 15-20 Hz; each LANDING_TARGET waits for the "
+            "attitude after it)",
+            f"p50 {tt['p50_ratio']:.2f}x, p99 {tt['p99_ratio']:.2f}x (without: "
+            f"{tt['p50_ms']:.1f} / {tt['p99_ms']:.1f} ms)", "<= 1.1x",
+            max(tt["p50_ratio"], tt["p99_ratio"]) <= 1.1,
             "python bench/web_map.py")  # fmt: skip
-        row("the same at 100 Hz, the page's events read by `curl` instead of a browser (what "
-            "the service itself spends on a page)",
-            f"p50 {sharp['reader_p50_ratio']:.2f}x, p99 {sharp['reader_p99_ratio']:.2f}x",
-            "<= 1.1x", max(sharp["reader_p50_ratio"], sharp["reader_p99_ratio"]) <= 1.1,
+        row("a harder case than the goal's: the same with ATTITUDE at 100 Hz (an onboard link's "
+            "rate), Chromium on the same 2 cores; the page's events read by `curl` instead (what "
+            "the service itself spends on a page, the browser on another machine)",
+            f"p50 {sharp['p50_ratio']:.2f}x, p99 {sharp['p99_ratio']:.2f}x (without: "
+            f"{sharp['p50_ms']:.1f} / {sharp['p99_ms']:.1f} ms); curl: p50 "
+            f"{sharp['reader_p50_ratio']:.2f}x, p99 {sharp['reader_p99_ratio']:.2f}x",
+            "<= 1.1x", max(sharp["p50_ratio"], sharp["p99_ratio"]) <= 1.1,
             "python bench/web_map.py")  # fmt: skip
         row("a harder case than the goal's: 1 target at 100 Hz (0.4 ms to its estimate), the "
             "same ratio; with `curl` reading the events instead of Chromium",
