@@ -207,13 +207,22 @@
     });
   }
 
+  // a vehicle's colour (its track, its marker, how its targets' estimates moved), by system id;
+  // the estimates themselves red, fused targets green
+  var COLOURS = ["#0969da", "#8250df", "#bf3989", "#953800", "#1b7c83", "#6e7781", "#4d2d00",
+                 "#0550ae", "#a475f9", "#e16f24"];
+  function colour(sysid) {
+    var i = parseInt(sysid, 10), n = COLOURS.length;
+    return isNaN(i) ? COLOURS[0] : COLOURS[((i - 1) % n + n) % n];
+  }
+
   function vehicle(sysid) {
     var v = vehicles[sysid];
     if (!v) {
       v = vehicles[sysid] = {
-        track: L.polyline([], {color: "#0969da", weight: 2, opacity: 0.6}).addTo(map),
-        marker: L.circleMarker([0, 0], {radius: 6, color: "#0969da", fillOpacity: 0.9}).addTo(map),
-        heading: L.polyline([], {color: "#0969da", weight: 3}).addTo(map)
+        track: L.polyline([], {color: colour(sysid), weight: 2, opacity: 0.6}).addTo(map),
+        marker: L.circleMarker([0, 0], {radius: 6, color: colour(sysid), fillOpacity: 0.9}).addTo(map),
+        heading: L.polyline([], {color: colour(sysid), weight: 3}).addTo(map)
       };
       v.marker.bindTooltip("vehicle " + sysid);
     }
@@ -224,7 +233,7 @@
     var t = targets[key];
     if (!t) {
       t = targets[key] = {
-        hist: L.polyline([], {color: "#8250df", weight: 1, opacity: 0.7}).addTo(map),
+        hist: L.polyline([], {color: colour(key.split("/")[0]), weight: 1, opacity: 0.7}).addTo(map),
         e2: L.polygon([], {color: "#cf222e", weight: 1, fillOpacity: 0.08}).addTo(map),
         e1: L.polygon([], {color: "#cf222e", weight: 2, fillOpacity: 0.15}).addTo(map),
         marker: L.circleMarker([0, 0], {radius: 5, color: "#cf222e", fillOpacity: 1}).addTo(map),
@@ -535,7 +544,7 @@
     for (var sysid in REPORT.vehicles) {
       var tr = REPORT.vehicles[sysid].track;
       L.polyline(tr.map(function (p) { return vLL(sysid, p[1], p[2]); }),
-                 {color: "#0969da", weight: 1, opacity: 0.3}).addTo(map);
+                 {color: colour(sysid), weight: 1, opacity: 0.3}).addTo(map);
     }
     function at(t) {
       label.textContent = "t_boot " + t.toFixed(1) + " s";
