@@ -180,10 +180,7 @@ class MapFeed:
         assert text is not None
         yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
         key = f"{sysid}/{target}"
-        veh = self._vehicles.get(sysid)
-        if veh is None:
-            veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
-        _set_origin(veh, origin)
+        veh = self._vehicle(sysid, origin)
         if vp is not None:
             veh["pos_ned_m"] = [float(v) for v in vp]
             veh["yaw_deg"] = yaw
@@ -199,6 +196,16 @@ class MapFeed:
         self.events += 1
         return key, yaw, sent_s * 1000.0, veh.get("origin_json", "null"), text
 
+    def _vehicle(self, sysid: int, origin: dict[str, Any] | None) -> dict[str, Any]:
+        """Vehicle ``sysid``'s part of the state (made on its first data), its origin noted."""
+        veh = self._vehicles.get(sysid)
+        if veh is None:
+            veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
+        if origin is not None and veh.get("origin") is not origin and veh.get("origin") != origin:
+            veh["origin"] = origin
+            veh["origin_json"] = json.dumps(origin)
+        return veh
+
     def _take_status(self, text: str) -> None:
         """A vehicle's status into the state (under the lock): its origin, when known."""
         try:
@@ -209,10 +216,7 @@ class MapFeed:
         except (ValueError, KeyError, TypeError):
             self.bad += 1
             return
-        veh = self._vehicles.get(sysid)
-        if veh is None:
-            veh = self._vehicles[sysid] = {"track": deque(maxlen=TRACK_POINTS)}
-        _set_origin(veh, origin)
+        self._vehicle(sysid, origin)
 
     def _take_fused(self, text: str, sent_s: float) -> tuple[str, None, float, str, str] | None:
         """A fused target's record into the state (under the lock), as :meth:`_take`."""
@@ -271,13 +275,6 @@ class MapFeed:
         with self._lock:
             if q in self._clients:
                 self._clients.remove(q)
-
-
-def _set_origin(veh: dict[str, Any], origin: dict[str, Any] | None) -> None:
-    """A vehicle's origin in the page's state, and as JSON for its events, when it changed."""
-    if origin is not None and veh.get("origin") is not origin and veh.get("origin") != origin:
-        veh["origin"] = origin
-        veh["origin_json"] = json.dumps(origin)
 
 
 def _no_nan(v: Any) -> Any:

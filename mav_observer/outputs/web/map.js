@@ -237,7 +237,7 @@
         e2: L.polygon([], {color: "#cf222e", weight: 1, fillOpacity: 0.08}).addTo(map),
         e1: L.polygon([], {color: "#cf222e", weight: 2, fillOpacity: 0.15}).addTo(map),
         marker: L.circleMarker([0, 0], {radius: 5, color: "#cf222e", fillOpacity: 1}).addTo(map),
-        row: addRow(key, key), sysid: key.split("/")[0]
+        row: addRow(key, key), sysid: key.split("/")[0], cells: targetCells
       };
       t.marker.bindTooltip(key);
     }
@@ -267,13 +267,29 @@
     }
   }
 
-  function writeText(t, rec, now) {
+  // a row's text now, or, for an estimate of the same status less than TEXT_MS after the text
+  // was last written, once TEXT_MS has passed
+  function showText(entry, rec, history, now) {
+    if (history || rec.status !== entry.status || !(now - entry.textAt < TEXT_MS)) {
+      writeRow(entry, rec, now);
+    } else {
+      entry.stale = rec;
+      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
+    }
+  }
+
+  function writeRow(entry, rec, now) {
+    var st = entry.row.querySelector(".st");
+    entry.textAt = now;
+    entry.status = rec.status;
+    entry.stale = null;
+    st.textContent = rec.status;
+    st.className = "st " + String(rec.status).replace(/ /g, "_");
+    entry.cells(entry, rec);
+  }
+
+  function targetCells(t, rec) {
     var tp = rec.target_pos_ned_m, sd = rec.rel_pos_std_ned_m;
-    t.textAt = now;
-    t.status = rec.status;
-    t.stale = null;
-    t.row.querySelector(".st").textContent = rec.status;
-    t.row.querySelector(".st").className = "st " + String(rec.status).replace(/ /g, "_");
     t.row.querySelector(".rg").textContent = rec.range_m.toFixed(2) + " m";
     t.row.querySelector(".age").textContent = "t " + rec.t_boot_s.toFixed(1) + " s";
     if (tp) {  // from the map's origin: every vehicle's targets comparable
@@ -287,8 +303,8 @@
   function flushText() {
     textTimer = null;
     var now = Date.now();
-    for (var k in targets) { if (targets[k].stale) { writeText(targets[k], targets[k].stale, now); } }
-    for (var name in fused) { if (fused[name].stale) { writeFusedText(fused[name], fused[name].stale, now); } }
+    for (var k in targets) { if (targets[k].stale) { writeRow(targets[k], targets[k].stale, now); } }
+    for (var name in fused) { if (fused[name].stale) { writeRow(fused[name], fused[name].stale, now); } }
     if (countStale) { writeCounts(now); }
   }
 
@@ -354,7 +370,7 @@
   function fusedEntry(name) {
     var f = fused[name];
     if (!f) {
-      f = fused[name] = {row: addRow("fused/" + name, "fused: " + name), layers: null};
+      f = fused[name] = {row: addRow("fused/" + name, "fused: " + name), layers: null, cells: fusedCells};
     }
     return f;
   }
@@ -395,22 +411,13 @@
       f.row.setAttribute("data-lat", rec.lat_deg);
       f.row.setAttribute("data-lon", rec.lon_deg);
     }
-    if (history || rec.status !== f.status || !(now - f.textAt < TEXT_MS)) { writeFusedText(f, rec, now); }
-    else {
-      f.stale = rec;
-      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
-    }
+    showText(f, rec, history, now);
     if (history) { drawFused(f, rec, history); }
     else { f.held = rec; scheduleMap(); }
   }
 
-  function writeFusedText(f, rec, now) {
+  function fusedCells(f, rec) {
     var sd = rec.pos_std_ned_m, ne = origin && rec.lat_deg != null ? geoNE(rec.lat_deg, rec.lon_deg) : null;
-    f.textAt = now;
-    f.status = rec.status;
-    f.stale = null;
-    f.row.querySelector(".st").textContent = rec.status;
-    f.row.querySelector(".st").className = "st " + String(rec.status).replace(/ /g, "_");
     f.row.querySelector(".rg").textContent = rec.range_m == null ? "-" : rec.range_m.toFixed(2) + " m";
     f.row.querySelector(".ne").textContent = ne ? ne[0].toFixed(2) + ", " + ne[1].toFixed(2) :
       (rec.lat_deg == null ? "-" : "no origin");
@@ -428,12 +435,7 @@
       t.row.setAttribute("data-n", tp[0]);
       t.row.setAttribute("data-e", tp[1]);
     }
-    if (history || rec.status !== t.status || !(now - t.textAt < TEXT_MS)) {
-      writeText(t, rec, now);
-    } else {
-      t.stale = rec;
-      if (!textTimer) { textTimer = setTimeout(flushText, TEXT_MS); }
-    }
+    showText(t, rec, history, now);
     if (!tp) { return; }
     if (!history) {  // live: drawn with the map's next frame
       t.held = rec;
