@@ -211,6 +211,22 @@ def test_a_fleet_on_one_map_each_vehicle_from_its_origin_and_a_fused_target(
             "data-rays") == "40"  # fmt: skip
         st = http_json(srv.url + "state")
         assert st is not None and st["fused"]["mast"]["record"]["rays"] == 40
+        # the first vehicle's origin, the grid's, is found 10 m further north (its local frame
+        # unchanged): what the others and fuse placed moves 10 m south on the grid
+        origins[1] = Origin(*to_geodetic(o1, (10.0, 0.0, 0.0))[:2], 584.0, "HOME_POSITION")
+        feed.add(rec(1, 103.0), None, origins[1].to_dict())
+        expected = {"1/gimbal": [40.0, 30.0], "2/gimbal": [30.0, 30.0], "3/gimbal": [30.0, 30.0],
+                    "fused/mast": [30.0, 30.0]}  # fmt: skip
+
+        def moved() -> bool:
+            now = drawn()
+            return now is not None and all(
+                abs(now[k][0] - v[0]) < 0.01 and abs(now[k][1] - v[1]) < 0.01
+                for k, v in expected.items()
+            )
+
+        assert wait_for(moved, 10.0), drawn()
+        assert ne.text == "30.00, 30.00"  # the table's text too
         browser.save_screenshot(str(tmp_path / "fleet_map.png"))
     finally:
         srv.close()

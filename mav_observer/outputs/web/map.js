@@ -173,8 +173,11 @@
       if (map) { moveVehicle(v, -d[0], -d[1]); }
     }
     for (var name in fused) {
-      var ly = fused[name].layers;
-      if (ly && map) { moveLayers([ly.hist, ly.e1, ly.e2, ly.marker], -d[0], -d[1]); }
+      var f = fused[name];
+      if (!f.layers || !map) { continue; }
+      moveLayers([f.layers.hist], -d[0], -d[1]);
+      drawFused(f, f.rec, null);
+      writeRow(f, f.rec, Date.now());
     }
   }
 
@@ -188,12 +191,16 @@
 
   // what a vehicle drew before its origin was known (or before it moved) moves with it
   function moveVehicle(sysid, dn, de) {
-    var v = vehicles[sysid], layers = v ? [v.track, v.marker, v.heading] : [];
+    var v = vehicles[sysid], layers = v ? [v.track, v.marker, v.heading] : [], mine = [];
     for (var k in targets) {
-      var t = targets[k];
-      if (t.sysid === String(sysid)) { layers.push(t.hist, t.e1, t.e2, t.marker); t.drawn = null; }
+      if (targets[k].sysid === String(sysid)) { mine.push(targets[k]); layers.push(targets[k].hist); }
     }
     moveLayers(layers, dn, de);
+    mine.forEach(function (t) {  // its latest estimate drawn and written again, where it now is
+      if (!t.rec || !t.rec.target_pos_ned_m) { return; }
+      drawTarget(t, t.rec.target_pos_ned_m, t.rec.rel_pos_std_ned_m);
+      writeRow(t, t.rec, Date.now());
+    });
   }
 
   function moveLayers(layers, dn, de) {
@@ -404,6 +411,7 @@
 
   function showFused(name, rec, history) {
     var f = fusedEntry(name), now = Date.now();
+    f.rec = rec;
     f.row.setAttribute("data-status", rec.status);
     f.row.setAttribute("data-t", rec.t_unix_s);
     f.row.setAttribute("data-rays", rec.rays);
@@ -429,6 +437,7 @@
     var t = target(key);
     var tp = rec.target_pos_ned_m;
     var now = Date.now();
+    t.rec = rec;
     t.row.setAttribute("data-status", rec.status);
     t.row.setAttribute("data-t", rec.t_boot_s);
     if (tp) {
