@@ -174,8 +174,8 @@ class MapFeed:
                 sysid, target = int(d["sysid"]), str(d["target"])
                 t_boot_s, status = float(d["t_boot_s"]), str(d["status"])
                 vp, tp = d.get("vehicle_pos_ned_m"), d.get("target_pos_ned_m")
-            except (ValueError, KeyError, TypeError):
-                self.bad += 1
+            except (ValueError, KeyError, TypeError) as exc:
+                self._refuse("estimate record", text, exc)
                 return None
         assert text is not None
         yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
@@ -196,6 +196,14 @@ class MapFeed:
         self.events += 1
         return key, yaw, sent_s * 1000.0, veh.get("origin_json", "null"), text
 
+    def _refuse(self, what: str, text: str | None, exc: Exception) -> None:
+        """A published text that is not a ``what``: counted in :attr:`bad`, logged (a warning
+        the first time, then at debug level: a stream of them must not flood the log)."""
+        self.bad += 1
+        level = logging.WARNING if self.bad == 1 else logging.DEBUG
+        log.log(level, "live map: not a %s (%s: %s), left out: %.80r", what,
+                type(exc).__name__, exc, text)  # fmt: skip
+
     def _vehicle(self, sysid: int, origin: dict[str, Any] | None) -> dict[str, Any]:
         """Vehicle ``sysid``'s part of the state (made on its first data), its origin noted."""
         veh = self._vehicles.get(sysid)
@@ -213,8 +221,8 @@ class MapFeed:
             sysid, origin = int(d["sysid"]), d.get("origin")
             if origin is not None:
                 float(origin["lat_deg"]), float(origin["lon_deg"])
-        except (ValueError, KeyError, TypeError):
-            self.bad += 1
+        except (ValueError, KeyError, TypeError) as exc:
+            self._refuse("status", text, exc)
             return
         self._vehicle(sysid, origin)
 
@@ -224,8 +232,8 @@ class MapFeed:
             d = json.loads(text)
             name, t_unix_s = str(d["target"]), float(d["t_unix_s"])
             lat, lon, status = d.get("lat_deg"), d.get("lon_deg"), str(d["status"])
-        except (ValueError, KeyError, TypeError):
-            self.bad += 1
+        except (ValueError, KeyError, TypeError) as exc:
+            self._refuse("fused target", text, exc)
             return None
         if "NaN" in text or "Infinity" in text:  # the page's JSON.parse takes no NaN
             text = json.dumps(_no_nan(d))
@@ -259,6 +267,7 @@ class MapFeed:
                 },
                 "events": self.events,
                 "dropped": self.dropped,
+                "bad": self.bad,
                 "clients": len(self._clients),
             }
 

@@ -174,14 +174,20 @@ def test_too_many_pages_are_refused_and_a_closed_one_is_let_go(server: MapServer
     assert server.feed.snapshot()["clients"] == 0
 
 
-def test_a_published_record_feeds_the_page_and_garbage_is_counted() -> None:
-    """``mav-observer map``'s path: the JSON the service published, not a record object."""
+def test_a_published_record_feeds_the_page_and_garbage_is_counted(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """``mav-observer map``'s path: the JSON the service published, not a record object; a
+    text that is not a record is counted in ``/state``'s ``bad`` and logged, the first one a
+    warning naming it."""
     feed = MapFeed()
     feed.add_published(record(3).to_json())
     feed.add_published("not json")
     feed.add_published('{"sysid": 1}')
     st = feed.snapshot()
-    assert st["events"] == 1 and feed.bad == 2
+    assert st["events"] == 1 and feed.bad == 2 and st["bad"] == 2
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and "'not json'" in warned[0] and "JSONDecodeError" in warned[0]
     assert st["targets"]["1/gimbal"]["record"]["t_boot_s"] == 103.0
     assert st["vehicles"]["1"]["pos_ned_m"] == [3.0, 0.0, -10.0]
 
