@@ -53,6 +53,12 @@ def add_parser(sub: Any) -> None:
     fp.add_argument("--rays", type=Path, nargs="+", help="fuse these ray files (replay --rays)")
     fp.add_argument("--output", "-o", type=Path, help="the fused estimates, JSON Lines")
     fp.add_argument(
+        "--html",
+        type=Path,
+        help="with --rays: a map report (the vehicles, the fused targets over time with a slider; "
+        "one file that opens from disk)",
+    )
+    fp.add_argument(
         "--mavlink-out",
         action="append",
         default=[],
@@ -159,6 +165,8 @@ def cmd_fuse(args: argparse.Namespace) -> int:
     fusion = Fusion(groups, **opts)
     if args.rays:
         return _offline(fusion, args)
+    if args.html:
+        raise ConfigError("--html makes the report of ray files: it needs --rays")
     return _live(fusion, args, opts)
 
 
@@ -174,12 +182,23 @@ def _offline(fusion: Fusion, args: argparse.Namespace) -> int:
             if ray is not None:
                 rays.append(ray)
     rays.sort(key=lambda r: r.t_unix_s)
+    report = None
+    if args.html:
+        from mav_observer.outputs.html_report import FusedReportData
+
+        report = FusedReportData()
     out = open(args.output, "w", encoding="utf-8") if args.output else None  # noqa: SIM115
     try:
         for r in rays:
+            if report is not None:
+                report.add_ray(r)
             for ft in fusion.add(r, r.t_unix_s):
-                if out is not None:
-                    out.write(_line(ft.estimate(r.t_unix_s), {}) + "\n")
+                if out is not None or report is not None:
+                    est = ft.estimate(r.t_unix_s)
+                    if out is not None:
+                        out.write(_line(est, {}) + "\n")
+                    if report is not None:
+                        report.add_fused(est)
     finally:
         if out is not None:
             out.close()
@@ -197,7 +216,23 @@ def _offline(fusion: Fusion, args: argparse.Namespace) -> int:
         print(f"{ft.name}: {e.status}, {where}; from {who}")
     if fusion.counts["bad_ray"]:
         print(f"{fusion.counts['bad_ray']} rays refused")
+    if report is not None:
+        _write_report(args.html, report, [p.name for p in args.rays])
     return 0
+
+
+def _write_report(path: Path, report: Any, sources: list[str]) -> None:
+    """``fuse --rays ... --html``: the map report of the fusion."""
+    from mav_observer.errors import MavObserverError
+    from mav_observer.outputs.html_report import write_html
+
+    lines = [f"{name}: {rows[-1][5]}, {len(rows)} estimates shown"
+             for name, rows in report.targets.items()]  # fmt: skip
+    text = "fused from " + ", ".join(sources) + "\n" + ("\n".join(lines) or "no fused estimate")
+    try:
+        write_html(path, report, "fusion of " + ", ".join(sources), text, None)
+    except OSError as exc:
+        raise MavObserverError(f"cannot write {path}: {exc}") from exc
 
 
 class _FollowTargetOut:

@@ -6,6 +6,10 @@ time (north, east, their 1-sigma, status, range) and each vehicle's track with i
 thinned to one point per :data:`EVERY_S` of the autopilot's clock; a time slider shows each
 target's estimate and sigma ellipses at that time and how it got there; the summary's text and
 the report plot (when matplotlib is installed) below.
+
+The same page shows a fleet's fusion after a flight (``mav-observer fuse --rays ... --html``):
+:class:`FusedReportData` keeps each vehicle's positions from its rays and each fused target's
+estimates, in the north-east-down frame of the first ray's position, on the rays' Unix clock.
 """
 
 from __future__ import annotations
@@ -57,6 +61,7 @@ class ReportData:
     def to_dict(self) -> dict[str, Any]:
         times = [row[0] for rows in self.targets.values() for row in (rows[0], rows[-1])]
         return {
+            "clock": "t_boot",
             "t0": min(times, default=0.0),
             "t1": max(times, default=0.0),
             "targets": {k: {"series": rows} for k, rows in self.targets.items()},
@@ -67,13 +72,80 @@ class ReportData:
         }
 
 
+@dataclass
+class FusedReportData:
+    """What the report of a fusion shows: each vehicle's ray positions and each fused target's
+    estimates, one per :data:`EVERY_S`, north and east (m) of the first ray's position, time
+    (s) from the first ray."""
+
+    targets: dict[str, list[list[Any]]] = field(default_factory=dict)
+    vehicles: dict[int, list[list[Any]]] = field(default_factory=dict)
+    origin: tuple[float, float, float] | None = None
+    t0: float | None = None
+    _last: dict[str, float] = field(default_factory=dict)
+
+    def _due(self, key: str, t: float) -> bool:
+        if 0.0 <= t - self._last.get(key, -math.inf) < EVERY_S:
+            return False
+        self._last[key] = t
+        return True
+
+    def _ne(self, lat: float, lon: float, alt: float) -> tuple[float, float]:
+        import pymap3d
+
+        if self.origin is None:
+            self.origin = (lat, lon, alt)
+        n, e, _ = pymap3d.geodetic2ned(lat, lon, alt, *self.origin)
+        return float(n), float(e)
+
+    def add_ray(self, ray: Any) -> None:
+        """A vehicle's ray (:class:`~mav_observer.fleet.rays.Ray`): where the vehicle was."""
+        if self.t0 is None:
+            self.t0 = ray.t_unix_s
+        if self._due(f"v{ray.sysid}", ray.t_unix_s):
+            n, e = self._ne(ray.lat_deg, ray.lon_deg, ray.alt_m)
+            self.vehicles.setdefault(ray.sysid, []).append([_r(ray.t_unix_s - self.t0),
+                                                           _r(n), _r(e), None])  # fmt: skip
+
+    def add_fused(self, est: Any) -> None:
+        """A fused estimate (:class:`~mav_observer.fleet.fusion.FusedEstimate`)."""
+        if est.geodetic is None or self.t0 is None or not self._due(est.name, est.t_unix_s):
+            return
+        n, e = self._ne(*est.geodetic)
+        sd = est.std_ned_m
+        sn, se = (None, None) if sd is None else (_r(sd[0]), _r(sd[1]))
+        rng = math.nan if est.range_m is None else est.range_m
+        self.targets.setdefault(est.name, []).append(
+            [_r(est.t_unix_s - self.t0), _r(n), _r(e), sn, se, est.status, _r(rng)]
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        times = [row[0] for rows in self.targets.values() for row in (rows[0], rows[-1])]
+        o = self.origin
+        origin = None if o is None else {"lat_deg": o[0], "lon_deg": o[1], "alt_m": o[2],
+                                         "source": "the first ray", "frame": "wgs84"}  # fmt: skip
+        return {
+            "clock": "t from the first ray",
+            "t0": min(times, default=0.0),
+            "t1": max(times, default=0.0),
+            "targets": {f"fused/{k}": {"series": rows} for k, rows in self.targets.items()},
+            "vehicles": {
+                str(s): {"track": rows, "origin": origin} for s, rows in self.vehicles.items()
+            },
+        }
+
+
 def _r(v: float) -> float | None:
     """A number for the page: 3 decimals (mm, ms), ``None`` if not finite."""
     return round(float(v), 3) if math.isfinite(v) else None
 
 
 def write_html(
-    path: Path, data: ReportData, title: str, summary_text: str, plot_png: bytes | None
+    path: Path,
+    data: ReportData | FusedReportData,
+    title: str,
+    summary_text: str,
+    plot_png: bytes | None,
 ) -> None:
     """The report: the page with everything inlined (``</`` escaped inside the scripts)."""
     payload = json.dumps(data.to_dict(), separators=(",", ":")).replace("</", "<\\/")

@@ -44,8 +44,9 @@ def test_two_vehicles_logs_fuse_offline_into_the_target(
         rays.append(str(r))
     with Path(rays[0]).open("a") as fh:
         fh.write("not a ray\n")
-    out = tmp_path / "fused.jsonl"
-    assert main(["fuse", "--rays", *rays, "--target", "t=1/gimbal,2/gimbal", "-o", str(out)]) == 0
+    out, html = tmp_path / "fused.jsonl", tmp_path / "fused.html"
+    assert main(["fuse", "--rays", *rays, "--target", "t=1/gimbal,2/gimbal", "-o", str(out),
+                 "--html", str(html)]) == 0  # fmt: skip
     text = capsys.readouterr().out
     assert "t: converged" in text and "1 rays refused" in text
     last = json.loads(out.read_text().splitlines()[-1])
@@ -54,6 +55,20 @@ def test_two_vehicles_logs_fuse_offline_into_the_target(
                                    *fl.target_geodetic)  # fmt: skip
     for err, sd in zip((n, e, d), last["pos_std_ned_m"], strict=True):
         assert abs(err) < 5 * sd
+    # the map report: both vehicles, and the fused target where the fusion put it
+    page = html.read_text()
+    report = json.loads(page.split("window.REPORT = ", 1)[1].split(";</script>", 1)[0])
+    assert sorted(report["vehicles"]) == ["1", "2"] and report["clock"] == "t from the first ray"
+    o = report["vehicles"]["1"]["origin"]
+    row = report["targets"]["fused/t"]["series"][-1]
+    n0, e0, _ = pymap3d.geodetic2ned(last["lat_deg"], last["lon_deg"], last["alt_m"],
+                                     o["lat_deg"], o["lon_deg"], o["alt_m"])  # fmt: skip
+    assert row[5] == "converged" and abs(row[1] - n0) < 0.05 and abs(row[2] - e0) < 0.05
+
+
+def test_a_report_needs_ray_files(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["fuse", "--target", "t=1/gimbal,2/gimbal", "--html", "x.html"]) != 0
+    assert "--html" in capsys.readouterr().err
 
 
 @pytest.mark.slow

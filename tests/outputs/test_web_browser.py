@@ -230,3 +230,37 @@ def test_a_fleet_on_one_map_each_vehicle_from_its_origin_and_a_fused_target(
         browser.save_screenshot(str(tmp_path / "fleet_map.png"))
     finally:
         srv.close()
+
+
+def test_a_fusion_report_opens_from_disk(browser: Any, tmp_path: Path) -> None:
+    """``fuse --rays ... --html``'s page: the vehicles from their rays and the fused target,
+    in metres from the first ray's position, at the slider's time."""
+    from mav_observer.fleet.fusion import FusedEstimate
+    from mav_observer.fleet.rays import Ray
+    from mav_observer.geo.geodesy import Origin, to_geodetic
+    from mav_observer.outputs.html_report import FusedReportData, write_html
+
+    first = Origin(-35.36, 149.16, 600.0, "GPS_GLOBAL_ORIGIN")
+    data = FusedReportData()
+    for k in range(50):
+        t = 1.7e9 + 0.2 * k
+        for sysid, (n, e) in ((1, (0.0, 0.0)), (2, (0.0, 60.0 + k))):
+            lat, lon, alt = to_geodetic(first, (n, e, 0.0))
+            data.add_ray(Ray(sysid, "gimbal", t, 100.0 + t - 1.7e9, "autopilot", lat, lon, alt,
+                             (0.6, 0.0, 0.8), 0.01))  # fmt: skip
+        geo = to_geodetic(first, (40.0, 30.0, 20.0))
+        data.add_fused(FusedEstimate("mast", "converged" if k > 10 else "converging", 2 * k + 2,
+                                     t, (-35.36, 149.16, 600.0), (40.0, 30.0, 20.0),
+                                     ((0.04, 0.0, 0.0), (0.0, 0.09, 0.0), (0.0, 0.0, 0.01)),
+                                     geo, 50.0, ()))  # fmt: skip
+    report = tmp_path / "fused.html"
+    write_html(report, data, "fusion", "mast: converged", None)
+    browser.get(report.as_uri())
+    body = browser.find_element("tag name", "body")
+    assert wait_for(lambda: body.get_attribute("data-ready"), 20.0)
+    row = browser.find_element("css selector", 'tr[data-key="fused/mast"]')
+    assert row.get_attribute("data-status") == "converged"
+    assert float(row.get_attribute("data-n")) == pytest.approx(40.0, abs=0.01)
+    assert float(row.get_attribute("data-e")) == pytest.approx(30.0, abs=0.01)
+    assert browser.find_element("id", "t").text.startswith("t from the first ray 9.8")
+    browser.save_screenshot(str(figures(tmp_path) / "fusion_report.png"))

@@ -558,7 +558,7 @@
                  {color: colour(sysid), weight: 1, opacity: 0.3}).addTo(map);
     }
     function at(t) {
-      label.textContent = "t_boot " + t.toFixed(1) + " s";
+      label.textContent = (REPORT.clock || "t_boot") + " " + t.toFixed(1) + " s";
       for (var sysid in REPORT.vehicles) {
         var trk = REPORT.vehicles[sysid].track, i = lastAtOrBefore(trk, t);
         if (i >= 0) { showVehicle(sysid, [trk[i][1], trk[i][2]], trk[i][3], trk.slice(Math.max(0, i - 300), i + 1).map(function (p) { return [p[1], p[2]]; })); }
