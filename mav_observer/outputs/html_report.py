@@ -36,8 +36,7 @@ class ReportData:
     targets: dict[str, list[list[Any]]] = field(default_factory=dict)
     vehicles: dict[int, list[list[Any]]] = field(default_factory=dict)
     origins: dict[int, dict[str, Any]] = field(default_factory=dict)
-    _last_t: dict[str, float] = field(default_factory=dict)
-    _last_v: dict[int, float] = field(default_factory=dict)
+    _last: dict[str, float] = field(default_factory=dict)
 
     def add(self, r: EstimateRecord, yaw_rad: float | None = None) -> None:
         key = f"{r.sysid}/{r.target}"
@@ -45,16 +44,14 @@ class ReportData:
         if r.origin is not None and r.sysid not in self.origins:
             self.origins[r.sysid] = r.origin.to_dict()
         tp = r.target_pos_ned_m
-        if tp is not None and not 0.0 <= t - self._last_t.get(key, -math.inf) < EVERY_S:
-            self._last_t[key] = t
+        if tp is not None and _due(self._last, key, t):
             sd = r.estimate.x_std_m
             sn, se = (None, None) if sd is None else (_r(sd[0]), _r(sd[1]))
             row = [_r(t), _r(tp[0]), _r(tp[1]), sn, se, str(r.estimate.status),
                    _r(r.estimate.range_m)]  # fmt: skip
             self.targets.setdefault(key, []).append(row)
         vp = r.vehicle_pos_ned_m
-        if vp is not None and not 0.0 <= t - self._last_v.get(r.sysid, -math.inf) < EVERY_S:
-            self._last_v[r.sysid] = t
+        if vp is not None and _due(self._last, f"vehicle/{r.sysid}", t):
             yaw = None if yaw_rad is None else _r(math.degrees(yaw_rad))
             self.vehicles.setdefault(r.sysid, []).append([_r(t), _r(vp[0]), _r(vp[1]), yaw])
 
@@ -84,12 +81,6 @@ class FusedReportData:
     t0: float | None = None
     _last: dict[str, float] = field(default_factory=dict)
 
-    def _due(self, key: str, t: float) -> bool:
-        if 0.0 <= t - self._last.get(key, -math.inf) < EVERY_S:
-            return False
-        self._last[key] = t
-        return True
-
     def _ne(self, lat: float, lon: float, alt: float) -> tuple[float, float]:
         import pymap3d
 
@@ -102,14 +93,16 @@ class FusedReportData:
         """A vehicle's ray (:class:`~mav_observer.fleet.rays.Ray`): where the vehicle was."""
         if self.t0 is None:
             self.t0 = ray.t_unix_s
-        if self._due(f"v{ray.sysid}", ray.t_unix_s):
+        if _due(self._last, f"vehicle/{ray.sysid}", ray.t_unix_s):
             n, e = self._ne(ray.lat_deg, ray.lon_deg, ray.alt_m)
             self.vehicles.setdefault(ray.sysid, []).append([_r(ray.t_unix_s - self.t0),
                                                            _r(n), _r(e), None])  # fmt: skip
 
     def add_fused(self, est: Any) -> None:
         """A fused estimate (:class:`~mav_observer.fleet.fusion.FusedEstimate`)."""
-        if est.geodetic is None or self.t0 is None or not self._due(est.name, est.t_unix_s):
+        if est.geodetic is None or self.t0 is None:
+            return
+        if not _due(self._last, f"fused/{est.name}", est.t_unix_s):
             return
         n, e = self._ne(*est.geodetic)
         sd = est.std_ned_m
@@ -133,6 +126,15 @@ class FusedReportData:
                 str(s): {"track": rows, "origin": origin} for s, rows in self.vehicles.items()
             },
         }
+
+
+def _due(last: dict[str, float], key: str, t: float) -> bool:
+    """Whether ``key`` gains a point at ``t``: EVERY_S after its last one (or its clock went
+    back), noting the time in ``last``."""
+    if 0.0 <= t - last.get(key, -math.inf) < EVERY_S:
+        return False
+    last[key] = t
+    return True
 
 
 def _r(v: float) -> float | None:
