@@ -52,9 +52,6 @@ QUEUE_LEN = 100
 BATCH_S = 0.2
 #: Estimates waiting for the feed's next batch, at most.
 INBOX_LEN = 100_000
-#: Inbox entries that are not a vehicle's estimate: a fused target's record (``add_fused``), a
-#: vehicle's status (``add_status``).
-_FUSED, _STATUS = object(), object()
 STATIC = {
     "/": ("index.html", "text/html; charset=utf-8"),
     "/map.js": ("map.js", "text/javascript; charset=utf-8"),
@@ -87,7 +84,9 @@ class MapFeed:
     def __init__(self, max_clients: int = MAX_CLIENTS, queue_len: int = QUEUE_LEN) -> None:
         self._lock = threading.Lock()
         # (the bound only matters should the pump stall: the oldest updates go first)
+        # each entry the method that takes it in, then its arguments
         self._inbox: deque[tuple[Any, ...]] = deque(maxlen=INBOX_LEN)
+        self._take_record = self._take  # (bound once: ``add`` is the service's hot path)
         self._vehicles: dict[int, dict[str, Any]] = {}
         self._targets: dict[str, dict[str, Any]] = {}
         self._fused: dict[str, dict[str, Any]] = {}
@@ -110,23 +109,23 @@ class MapFeed:
     ) -> None:
         """An estimate the service published (``rec_json``: its JSON, when already made), the
         vehicle's heading at its time, its origin. An append: never a wait, nothing computed."""
-        self._inbox.append((rec, yaw_rad, origin, rec_json, time.time()))
+        self._inbox.append((self._take_record, rec, yaw_rad, origin, rec_json, time.time()))
 
     def add_published(self, text: str) -> None:
         """An estimate record as a service published it (its JSON, ``docs/schema.md``:
         ``mav-observer map``); one that is not such a record is counted in :attr:`bad`."""
-        self._inbox.append((None, None, None, text, time.time()))
+        self._inbox.append((self._take_published, text, time.time()))
 
     def add_fused(self, text: str) -> None:
         """A fused target's record as ``mav-observer fuse`` published it (``docs/schema.md``);
         one that is not such a record is counted in :attr:`bad`."""
-        self._inbox.append((_FUSED, None, None, text, time.time()))
+        self._inbox.append((self._take_fused, text, time.time()))
 
     def add_status(self, text: str) -> None:
         """A vehicle's status as a service published it (``docs/schema.md``): its origin, for
         ``mav-observer map`` (whose estimate records carry none); one that is not a status is
         counted in :attr:`bad`."""
-        self._inbox.append((_STATUS, None, None, text, time.time()))
+        self._inbox.append((self._take_status, text, time.time()))
 
     def pump(self) -> None:
         """Take in what was added: the state, and to each page one batch of events, the
@@ -136,10 +135,7 @@ class MapFeed:
             inbox = self._inbox
             while inbox:
                 item = inbox.popleft()
-                if item[0] is _STATUS:
-                    self._take_status(item[3])
-                    continue
-                taken = self._take_fused(*item[3:]) if item[0] is _FUSED else self._take(*item)
+                taken = item[0](*item[1:])
                 if taken is not None:
                     latest[taken[0]] = taken[1:]
             clients = list(self._clients)
@@ -156,29 +152,48 @@ class MapFeed:
 
     def _take(
         self,
-        rec: EstimateRecord | None,
+        rec: EstimateRecord,
         yaw_rad: float | None,
         origin: dict[str, Any] | None,
         text: str | None,
         sent_s: float,
-    ) -> tuple[str, float | None, float, str, str] | None:
-        """One added estimate into the state (under the lock): ``(key, yaw_deg, sent_ms,
-        origin JSON, record JSON)``, or ``None`` for a published text that is not a record."""
-        if rec is not None:
-            text = rec.to_json() if text is None else text
-            sysid, target, t_boot_s = rec.sysid, rec.target, rec.t_boot_s
-            vp, tp, status = rec.vehicle_pos_ned_m, rec.target_pos_ned_m, str(rec.estimate.status)
-        else:
-            try:
-                d = json.loads(text or "")
-                sysid, target = int(d["sysid"]), str(d["target"])
-                t_boot_s, status = float(d["t_boot_s"]), str(d["status"])
-                vp, tp = d.get("vehicle_pos_ned_m"), d.get("target_pos_ned_m")
-            except (ValueError, KeyError, TypeError) as exc:
-                self._refuse("estimate record", text, exc)
-                return None
-        assert text is not None
+    ) -> tuple[str, float | None, float, str, str]:
+        """One estimate the service added into the state (under the lock): ``(key, yaw_deg,
+        sent_ms, origin JSON, record JSON)``."""
         yaw = None if yaw_rad is None or not math.isfinite(yaw_rad) else math.degrees(yaw_rad)
+        return self._take_parts(rec.sysid, rec.target, rec.t_boot_s, rec.vehicle_pos_ned_m,
+                                rec.target_pos_ned_m, str(rec.estimate.status), yaw, origin,
+                                rec.to_json() if text is None else text, sent_s)  # fmt: skip
+
+    def _take_published(
+        self, text: str, sent_s: float
+    ) -> tuple[str, float | None, float, str, str] | None:
+        """A published estimate record into the state, as :meth:`_take`; ``None`` for a text
+        that is not one (its numbers checked here: nothing after this may raise)."""
+        try:
+            d = json.loads(text)
+            sysid, target = int(d["sysid"]), str(d["target"])
+            t_boot_s, status = float(d["t_boot_s"]), str(d["status"])
+            vp, tp = _vector(d.get("vehicle_pos_ned_m")), _vector(d.get("target_pos_ned_m"))
+        except (ValueError, KeyError, TypeError) as exc:
+            self._refuse("estimate record", text, exc)
+            return None
+        return self._take_parts(sysid, target, t_boot_s, vp, tp, status, None, None, text, sent_s)
+
+    def _take_parts(
+        self,
+        sysid: int,
+        target: str,
+        t_boot_s: float,
+        vp: Any,
+        tp: Any,
+        status: str,
+        yaw: float | None,
+        origin: dict[str, Any] | None,
+        text: str,
+        sent_s: float,
+    ) -> tuple[str, float | None, float, str, str]:
+        """An estimate's parts, checked, into the state: as :meth:`_take`."""
         key = f"{sysid}/{target}"
         veh = self._vehicle(sysid, origin)
         if vp is not None:
@@ -214,13 +229,13 @@ class MapFeed:
             veh["origin_json"] = json.dumps(origin)
         return veh
 
-    def _take_status(self, text: str) -> None:
+    def _take_status(self, text: str, sent_s: float) -> None:
         """A vehicle's status into the state (under the lock): its origin, when known."""
         try:
             d = json.loads(text)
             sysid, origin = int(d["sysid"]), d.get("origin")
             if origin is not None:
-                float(origin["lat_deg"]), float(origin["lon_deg"])
+                _vector([origin["lat_deg"], origin["lon_deg"]])
         except (ValueError, KeyError, TypeError) as exc:
             self._refuse("status", text, exc)
             return
@@ -232,6 +247,8 @@ class MapFeed:
             d = json.loads(text)
             name, t_unix_s = str(d["target"]), float(d["t_unix_s"])
             lat, lon, status = d.get("lat_deg"), d.get("lon_deg"), str(d["status"])
+            if lat is not None and lon is not None:
+                lat, lon = _vector([lat, lon])
         except (ValueError, KeyError, TypeError) as exc:
             self._refuse("fused target", text, exc)
             return None
@@ -242,7 +259,7 @@ class MapFeed:
             entry = self._fused[name] = {"history": deque(maxlen=TRACK_POINTS)}
         entry["record_json"] = text
         if lat is not None and lon is not None and _step_due(entry, t_unix_s):
-            entry["history"].append([float(lat), float(lon), status])
+            entry["history"].append([lat, lon, status])
         self.events += 1
         return f"fused/{name}", None, sent_s * 1000.0, "null", text
 
@@ -284,6 +301,16 @@ class MapFeed:
         with self._lock:
             if q in self._clients:
                 self._clients.remove(q)
+
+
+def _vector(v: Any) -> list[float] | None:
+    """A published vector's numbers (north and east first), or ``None``; ``ValueError`` or
+    ``TypeError`` for one that is not a list of numbers."""
+    if v is None:
+        return None
+    if not isinstance(v, list) or len(v) < 2:
+        raise TypeError(f"{v!r} is not a list of at least a north and an east")
+    return [float(x) for x in v]
 
 
 def _no_nan(v: Any) -> Any:

@@ -240,3 +240,22 @@ def test_a_status_gives_a_vehicle_its_origin_for_the_map_command() -> None:
     (ev,) = json.loads(q.get_nowait().removeprefix(b"data: "))
     assert ev["key"] == "2/gimbal" and ev["origin"] == origin
     assert feed.snapshot()["vehicles"]["2"]["origin"] == origin and feed.bad == 1
+
+
+def test_texts_with_bad_numbers_are_counted_and_the_batch_still_goes_out() -> None:
+    """A published record whose position is not numbers, a fused target whose latitude is
+    text, a status whose origin is a number: each counted in ``bad``, none stops the feed's
+    batch, which still carries the good estimate sent with them."""
+    feed = MapFeed()
+    q = feed.subscribe()
+    assert q is not None
+    doc = json.loads(record(1).to_json())
+    feed.add_published(json.dumps({**doc, "vehicle_pos_ned_m": "north"}))
+    feed.add_published(json.dumps({**doc, "target_pos_ned_m": [1.0]}))
+    feed.add_fused(json.dumps({**json.loads(fused_json(1.7e9)), "lat_deg": "x"}))
+    feed.add_status('{"sysid": 1, "origin": 5}')
+    feed.add_published(record(2).to_json())
+    feed.pump()
+    (ev,) = json.loads(q.get_nowait().removeprefix(b"data: "))
+    assert ev["key"] == "1/gimbal" and ev["record"]["t_boot_s"] == 102.0
+    assert feed.bad == 4 and feed.snapshot()["events"] == 1
